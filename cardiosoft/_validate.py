@@ -39,8 +39,8 @@ def check_range(
     if _is_traced(value):
         return value
     arr = np.asarray(value, dtype=float) / scale
-    left = "(" if lo_open else "["
-    right = ")" if hi_open else "]"
+    left = "(" if lo_open or math.isinf(lo) else "["
+    right = ")" if hi_open or math.isinf(hi) else "]"
     allowed = f"{left}{_fmt(lo)}, {_fmt(hi)}{right}"
     unit_txt = f" {unit}" if unit and unit != "-" else " (dimensionless)"
     for v in np.atleast_1d(arr).ravel():

@@ -187,7 +187,8 @@ def apex_motion(shell: Shell, omega, shortening) -> ApexMotion:
     omega = jnp.asarray(omega, dtype=float)
     shortening = jnp.asarray(shortening, dtype=float)
     t0 = shell.t0
-    tf = _solve_tf(shell, omega, shortening)
+    # vectorize: one scalar root find per (Omega, C) pair, also for broadcast array inputs
+    tf = jnp.vectorize(lambda o, c: _solve_tf(shell, o, c))(omega, shortening)
     return ApexMotion(
         cable_length=cable_length(shell, omega),
         t0=t0,
@@ -219,6 +220,9 @@ def _main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.plot:
+            from cardiosoft.plots import check_figure_path
+
+            check_figure_path(args.plot)
             refuse_overwrite(args.plot, args.force)
         shell = Shell()
         omegas = np.arange(1, 7)

@@ -2,9 +2,24 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from cardiosoft._cli import atomic_path
+
+FIGURE_FORMATS = ("png", "pdf", "svg")
+
+
+def check_figure_path(path) -> str:
+    """The figure format from ``path``'s extension; ``ValueError`` if it is not supported."""
+    fmt = Path(path).suffix.lstrip(".").lower()
+    if fmt not in FIGURE_FORMATS:
+        raise ValueError(
+            f"figure file {path}: extension {fmt or '(none)'!r} is not one of "
+            f"{', '.join(FIGURE_FORMATS)}"
+        )
+    return fmt
 
 
 def _pyplot():
@@ -17,7 +32,7 @@ def _pyplot():
 
 
 def plot_apex_motion(omegas, shortenings, dz_mm, dalpha_deg, path) -> None:
-    """Fig. 7(a): apex translation (mm, top) and rotation (deg, bottom) against C, one line per Omega."""
+    """Fig. 7(a): apex translation (mm, top) and rotation (deg, bottom) against C, per Omega."""
     plt = _pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(5, 6), sharex=True, constrained_layout=True)
     for j, omega in enumerate(omegas):
@@ -29,5 +44,5 @@ def plot_apex_motion(omegas, shortenings, dz_mm, dalpha_deg, path) -> None:
     axes[0].legend(fontsize=8, ncol=2)
     fig.suptitle("Geometrical model (paper Fig. 7(a))")
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format=str(path).rsplit(".", 1)[-1] if "." in str(path) else "png")
+        fig.savefig(tmp, format=check_figure_path(path))
     plt.close(fig)
