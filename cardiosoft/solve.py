@@ -1,0 +1,188 @@
+"""Time integration: the only module of cardiosoft that calls ``diffrax.diffeqsolve``.
+
+Solver settings are data (:class:`SolverConfig`); :func:`preset` gives the named ones. Solves
+never throw (``throw=False``): callers inspect ``sol.result`` (and mask it under ``vmap``).
+
+Choosing (``notes/diffrax-practice.md``): Tsit5 for the smooth bench; ``preset(..., stiff=True)``
+(Kvaerno5 with a Newton root finder and PID (0.3, 0.4)) when valves or tiny inertances make the
+model stiff; compare ``sol.stats["num_steps"]`` before deciding. ``atol`` is absolute in SI and
+shared by every state component: pressures (Pa, ~1e4) and volumes (m^3, ~1e-5) differ by nine
+orders of magnitude, so for volumes ``atol`` rather than ``rtol`` usually sets the accuracy.
+"""
+
+from __future__ import annotations
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+
+from cardiosoft.circulation import inlet_pressure
+
+__all__ = ["PRESETS", "SolverConfig", "integrate", "preset", "respond"]
+
+
+class SolverConfig(eqx.Module):
+    """Solver settings.
+
+    **Arguments:**
+
+    - ``solver`` (static): a diffrax solver instance; default ``Tsit5()``.
+    - ``rtol``, ``atol``: tolerances of the PID controller (atol in SI units of the state).
+    - ``pcoeff``, ``icoeff``: PID coefficients; (0, 1) is the plain I controller.
+    - ``max_steps`` (static): bound on the number of steps (sizes the checkpoint memory).
+    - ``dt0``: first step (s); None picks it automatically.
+    - ``adjoint`` (static): diffrax adjoint; the default checkpointed one for reverse mode,
+      ``diffrax.ForwardMode()`` for ``jax.jvp``/``jacfwd`` (least-squares fitting).
+    """
+
+    solver: diffrax.AbstractSolver = eqx.field(static=True, default_factory=diffrax.Tsit5)
+    rtol: jax.Array = eqx.field(converter=jnp.asarray, default=1e-6)
+    atol: jax.Array = eqx.field(converter=jnp.asarray, default=1e-9)
+    pcoeff: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
+    icoeff: jax.Array = eqx.field(converter=jnp.asarray, default=1.0)
+    max_steps: int = eqx.field(static=True, default=16384)
+    dt0: float | None = None
+    adjoint: diffrax.AbstractAdjoint = eqx.field(
+        static=True, default_factory=diffrax.RecursiveCheckpointAdjoint
+    )
+
+
+PRESETS: dict[str, SolverConfig] = {
+    "fast": SolverConfig(diffrax.Tsit5(), rtol=1e-4, atol=1e-8),
+    "default": SolverConfig(diffrax.Tsit5(), rtol=1e-6, atol=1e-9),
+    "reference": SolverConfig(diffrax.Tsit5(), rtol=1e-10, atol=1e-13, max_steps=65536),
+}
+"""Named non-stiff configurations; see :func:`preset`.
+
+"reference" uses Tsit5, not Dopri8: output at ``ts`` is interpolated, and diffrax's Dopri8
+interpolant was measured 300x less accurate there (relative error 8e-9 against 3e-11 for Tsit5
+on an RC decay at rtol 1e-10), although Dopri8 is more accurate at its own steps.
+"""
+
+
+def preset(name: str, stiff: bool = False) -> SolverConfig:
+    """The named configuration (``"fast"``, ``"default"``, ``"reference"``).
+
+    With ``stiff=True`` the solver is ``Kvaerno5`` with a Newton root finder at the controller's
+    tolerances and the PID coefficients are (0.3, 0.4).
+    """
+    if name not in PRESETS:
+        raise ValueError(f"solver preset {name!r} is not one of {', '.join(PRESETS)}")
+    config = PRESETS[name]
+    if stiff:
+        solver = diffrax.Kvaerno5(root_finder=diffrax.with_stepsize_controller_tols(optx.Newton)())
+        config = SolverConfig(
+            solver,
+            config.rtol,
+            config.atol,
+            0.3,
+            0.4,
+            config.max_steps,
+            config.dt0,
+            config.adjoint,
+        )
+    return config
+
+
+def integrate(
+    vector_field, y0, t0, t1, *, args=None, ts=None, jump_ts=None, config=None, dense=False
+) -> diffrax.Solution:
+    """Solve ``dy/dt = vector_field(t, y, args)`` from ``t0`` to ``t1``.
+
+    **Arguments:**
+
+    - ``vector_field``: ``(t, y, args) -> dy/dt`` with the pytree structure of ``y0``. Pass
+      parameters through ``args`` (or make it a Module), not by closure, to avoid recompiles.
+    - ``y0``: any pytree of arrays (e.g. a dict of scalars).
+    - ``ts``: save times (interpolated); None saves ``t1`` only.
+    - ``jump_ts``: known kinks/jumps of the forcing in time (e.g. ``CablePull.kink_times``),
+      stepped to exactly through ``ClipStepSizeController``.
+    - ``config``: a :class:`SolverConfig`, ``preset("default")`` when None.
+    - ``dense``: keep the dense interpolant (``sol.evaluate``).
+
+    **Returns:** the ``diffrax.Solution``; never throws, check ``sol.result``.
+    """
+    config = preset("default") if config is None else config
+    controller = diffrax.PIDController(
+        rtol=config.rtol, atol=config.atol, pcoeff=config.pcoeff, icoeff=config.icoeff
+    )
+    if jump_ts is not None:
+        controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
+    ftype = jnp.result_type(float)
+    saveat = (
+        diffrax.SaveAt(t1=True, dense=dense)
+        if ts is None
+        else diffrax.SaveAt(ts=jnp.asarray(ts, dtype=ftype), dense=dense)
+    )
+    return diffrax.diffeqsolve(
+        diffrax.ODETerm(vector_field),
+        config.solver,
+        jnp.asarray(t0, dtype=ftype),
+        jnp.asarray(t1, dtype=ftype),
+        config.dt0,
+        y0,
+        args=args,
+        saveat=saveat,
+        stepsize_controller=controller,
+        adjoint=config.adjoint,
+        max_steps=config.max_steps,
+        throw=False,
+    )
+
+
+def _afterload_field(t, y, args):
+    block, inflow = args
+    return block.node_rhs(y, inflow(t))
+
+
+@eqx.filter_jit
+def _respond(block, inflow, ts, y0, config, jump_ts):
+    sol = integrate(
+        _afterload_field,
+        y0,
+        0.0,
+        ts[-1],
+        args=(block, inflow),
+        ts=ts,
+        jump_ts=jump_ts,
+        config=config,
+    )
+
+    def pressure(t, y):
+        q, dqdt = jax.jvp(inflow, (t,), (jnp.ones_like(t),))
+        return inlet_pressure(block, y, q, dqdt)
+
+    return jax.vmap(pressure)(ts, sol.ys), sol.result, sol.stats["num_steps"]
+
+
+def respond(block, inflow, ts, y0=None, config=None, *, jump_ts=None) -> jax.Array:
+    """Inlet pressure (Pa) of an afterload driven standalone by a prescribed inflow.
+
+    **Arguments:**
+
+    - ``block``: an :class:`~cardiosoft.circulation.AbstractAfterload`.
+    - ``inflow``: a JAX function ``q(t)`` (m^3/s); dq/dt comes from ``jax.jvp``. Make it an
+      ``eqx.Module`` with array fields (or a module-level function) so that a new inflow
+      does not recompile.
+    - ``ts``: increasing output times (s), ``ts[-1] > 0``; the solve runs from t = 0.
+    - ``y0``: initial block state; ``block.init()`` (rest) when None.
+    - ``config``: a :class:`SolverConfig` (``preset("default")`` when None); ``jump_ts``:
+      kinks of ``inflow`` (s).
+
+    **Returns:** the inlet pressure at ``ts``. Raises ``RuntimeError`` if the solve failed, or
+    an equinox runtime error when called under ``jit``.
+    """
+    ts = jnp.asarray(ts, dtype=jnp.result_type(float))
+    y0 = block.init() if y0 is None else y0
+    config = preset("default") if config is None else config
+    p, result, num_steps = _respond(block, inflow, ts, y0, config, jump_ts)
+    failed = result != diffrax.RESULTS.successful
+    message = "respond: the afterload solve failed; raise max_steps or loosen the tolerances"
+    if isinstance(failed, jax.core.Tracer):
+        return eqx.error_if(p, failed, message)
+    if bool(failed):
+        reason = diffrax.RESULTS[result]
+        raise RuntimeError(f"{message}: {reason} ({int(num_steps)} steps taken)")
+    return p
