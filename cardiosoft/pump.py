@@ -1,0 +1,349 @@
+"""The pump surrogate: one strain-energy potential U(V, x; Omega) of the soft shell.
+
+V is the cavity volume (m^3), x the cable pull (m; the displacement of the disk holding all
+cables, ``x = C L(Omega)`` with L from eq. (3)) and Omega the helix parameter. Everything else
+follows from U by automatic differentiation:
+
+- chamber elastic pressure ``P = dU/dV`` (Pa) and total cable force ``F = dU/dx`` (N);
+- ``dU = F dx + P dV``: mechanical work = stored energy + hydraulic work, so no efficiency can
+  exceed one, and Maxwell's symmetry ``dF/dV = dP/dx`` holds by construction.
+
+Structure (DESIGN.md section 3.2), built in rather than hoped for:
+
+``U(V, x) = W(x) + Phi(V - V_eq(x); E(x))``
+
+- ``V_eq(x) = V_u (1 - EF_0(C, Omega))`` is the zero-pressure volume, with ``V_u`` the unloaded
+  cavity (108.6 ml, :func:`cardiosoft.geometry.cavity_volume`). The zero-pressure ejection
+  fraction is ``EF_0 = 1 - exp(-h)`` with
+  ``h = a(Omega) C + b(Omega) C^2 + S(Omega C) (s_0 + s_1 C)``: ``a, b, s_0, s_1 >= 0`` and ``S``
+  a smooth step in the twist ``Omega C`` (proportional to the apex rotation, eq. 7), normalised to
+  ``S = 0`` at rest. It is the torsional buckling: the shell folds once the apex has turned far
+  enough. Every term is non-decreasing in C, so ``V_eq`` decreases with x, ``EF_0(0) = 0`` and
+  ``EF_0 < 1``.
+- ``W(x)`` is the strain energy at zero pressure. Its force ``W'(x) = K x / (1 + (x/x_b)^2)^g``
+  rises linearly, peaks near the buckling pull ``x_b = L C_b`` (the step's centre,
+  ``C_b = tau / Omega``) and falls as the folds form (Fig. 10(d)): U is not convex in x. Under
+  displacement control that is stable; under force control it snaps through.
+- ``Phi(s; E) = (E / beta^2) (cosh(beta s) - 1)`` is the chamber's elastic energy about the
+  zero-pressure volume: ``P = (E / beta) sinh(beta s)`` and ``d2U/dV2 = E cosh(beta s) > 0``
+  everywhere (a unique volume for each pressure). The chamber stiffens with pressure
+  (``dP/dV = sqrt(E^2 + beta^2 P^2)``), and folding softens it, ``E = E_u exp(-kappa EF_0)``:
+  the folded shell is more compliant (Fig. 10(a): static SV falls with afterload).
+- ``U(V_u, 0) = 0`` and ``P(V_u, 0) = 0``: the unloaded shell at rest; ``P < 0`` below ``V_eq``
+  (elastic recoil refills the chamber when the cables are released).
+
+A separate smooth predictor gives the number of folds (3 or 4, Table I): three folds need few
+turns and a large shortening.
+
+Parameters are array leaves: new values never recompile. The fitted artifact lives in
+``surrogates/`` (weights + JSON model card, never pickled); :func:`load` reads it.
+"""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+from pathlib import Path
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cardiosoft._validate import check_range
+from cardiosoft.datasets import sha256
+from cardiosoft.geometry import Shell, cable_length, cavity_volume
+from cardiosoft.units import ml, mmHg
+
+__all__ = [
+    "DEFAULT_ARTIFACT",
+    "Domain",
+    "PumpSurrogate",
+    "load",
+]
+
+DEFAULT_ARTIFACT = "ss950-v1"
+"""Name of the surrogate shipped with the package (``surrogates/ss950-v1.eqx`` + ``.json``)."""
+
+FORMAT_VERSION = 1
+
+
+class Domain(NamedTuple):
+    """Where the surrogate was fitted (user units)."""
+
+    omega: tuple[float, float] = (0.0, 6.0)
+    shortening: tuple[float, float] = (0.0, 0.65)
+    pressure_mmHg: tuple[float, float] = (-20.0, 150.0)
+
+
+def _softplus(z):
+    return jax.nn.softplus(z)
+
+
+class PumpSurrogate(eqx.Module):
+    """The soft pump's strain-energy potential U(V, x; Omega) (module docstring).
+
+    All methods take and return SI values: V in m^3, x in m, pressure in Pa, force in N,
+    energy in J. ``omega`` is the helix parameter (dimensionless). Raw parameters are
+    unconstrained reals; positivity comes from ``softplus``/``exp`` so that any parameter value is
+    a valid pump and fitting needs no constraints.
+
+    Arguments are checked against :attr:`domain` only by the methods that take user-facing
+    quantities (``ejection_fraction``, ``folds``, :meth:`check`); the energy and its derivatives
+    are pure functions for use inside ``jit``/``vmap``/``grad``.
+    """
+
+    shell: Shell = Shell()
+    # zero-pressure volume law, EF_0(C, Omega)
+    ef_linear: jax.Array = eqx.field(converter=jnp.asarray, default=(0.4, 0.0))
+    ef_quadratic: jax.Array = eqx.field(converter=jnp.asarray, default=(1.4, 1.4))
+    buckling_twist: jax.Array = eqx.field(converter=jnp.asarray, default=-0.8)
+    buckling_width: jax.Array = eqx.field(converter=jnp.asarray, default=-1.0)
+    fold_depth: jax.Array = eqx.field(converter=jnp.asarray, default=(0.5, 0.0))
+    three_fold_depth: jax.Array = eqx.field(converter=jnp.asarray, default=-2.0)
+    # zero-pressure force law, W'(x)
+    log_stiffness: jax.Array = eqx.field(converter=jnp.asarray, default=(8.0, 0.0))
+    softening_exponent: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
+    # chamber pressure-volume law
+    log_chamber_elastance: jax.Array = eqx.field(converter=jnp.asarray, default=22.0)
+    fold_compliance: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
+    log_stiffening: jax.Array = eqx.field(converter=jnp.asarray, default=11.0)
+    # fold-count predictor: boundary in (Omega, C) and transition widths
+    three_fold_boundary: jax.Array = eqx.field(converter=jnp.asarray, default=(1.5, 0.35))
+    three_fold_width: jax.Array = eqx.field(converter=jnp.asarray, default=(0.1, 0.02))
+    domain: Domain = eqx.field(static=True, default=Domain())
+
+    # ----------------------------------------------------------------------------- geometry
+    @property
+    def unloaded_volume(self) -> jax.Array:
+        """V_u: the cavity of the unloaded shell (m^3), 108.6 ml for the paper's shell."""
+        return cavity_volume(self.shell)
+
+    def cable_length(self, omega) -> jax.Array:
+        """L(Omega) (m), eq. (3)."""
+        return cable_length(self.shell, omega)
+
+    # ------------------------------------------------------------------------ volume law
+    def _ef_zero_pressure(self, shortening, omega):
+        """EF_0(C, Omega) in [0, 1): the zero-pressure ejection fraction (module docstring)."""
+        w = (omega - 3.0) / 2.0  # centred Omega keeps the raw parameters O(1)
+        a = _softplus(self.ef_linear[0] + self.ef_linear[1] * w)
+        b = _softplus(self.ef_quadratic[0] + self.ef_quadratic[1] * w)
+        tau = _softplus(self.buckling_twist)
+        width = _softplus(self.buckling_width)
+        twist = omega * shortening
+        step = jax.nn.sigmoid((twist - tau) / width) - jax.nn.sigmoid(-tau / width)
+        depth = _softplus(self.fold_depth[0]) + _softplus(self.fold_depth[1]) * shortening
+        three = self.three_fold_probability(omega, shortening) * _softplus(self.three_fold_depth)
+        h = a * shortening + b * shortening**2 + step * depth + three
+        return -jnp.expm1(-h)
+
+    def zero_pressure_volume(self, x, omega) -> jax.Array:
+        """V_eq(x; Omega) (m^3): the cavity volume at zero pressure for a cable pull x (m)."""
+        c = x / self.cable_length(omega)
+        return self.unloaded_volume * (1.0 - self._ef_zero_pressure(c, omega))
+
+    # ------------------------------------------------------------------------- the potential
+    def _buckling_shortening_ratio(self, c, omega):
+        """(C / C_b)^2 with C_b = tau / Omega, written without dividing by Omega (Omega = 0 ok)."""
+        return (c * omega / _softplus(self.buckling_twist)) ** 2
+
+    def _shell_energy(self, x, omega):
+        """W(x; Omega) (J): zero-pressure strain energy; W' = K x / (1 + (x/x_b)^2)^g."""
+        length = self.cable_length(omega)
+        k = jnp.exp(self.log_stiffness[0] + self.log_stiffness[1] * (omega - 4.0) / 4.0)
+        g = _softplus(self.softening_exponent) + 0.5
+        r = self._buckling_shortening_ratio(x / length, omega)  # (x / x_b)^2
+        # x_b^2 = x^2 / r; W = K x_b^2 / (2 (1 - g)) ((1 + r)^(1 - g) - 1), written through
+        # x^2 * phi(r) with phi(r) = ((1 + r)^(1 - g) - 1) / (r (1 - g)), smooth at r = 0 and
+        # at g = 1 (where it is log1p(r) / r).
+        one_minus_g = 1.0 - g
+        safe_r = jnp.where(r > 1e-12, r, 1.0)
+        log1p_r = jnp.log1p(safe_r)
+        z = one_minus_g * log1p_r
+        safe_z = jnp.where(jnp.abs(z) > 1e-12, z, 1.0)
+        phi_big = jnp.where(jnp.abs(z) > 1e-12, jnp.expm1(safe_z) / safe_z, 1.0 + 0.5 * z)
+        phi = jnp.where(r > 1e-12, phi_big * log1p_r / safe_r, 1.0 - 0.5 * g * r)
+        return 0.5 * k * x**2 * phi
+
+    def _chamber_elastance(self, x, omega):
+        """E (Pa/m^3): chamber stiffness at zero pressure, softened as the shell folds."""
+        c = x / self.cable_length(omega)
+        soften = _softplus(self.fold_compliance) * self._ef_zero_pressure(c, omega)
+        return jnp.exp(self.log_chamber_elastance - soften)
+
+    def _stiffening(self):
+        """beta (1/m^3): how fast the chamber stiffens with distension."""
+        return jnp.exp(self.log_stiffening)
+
+    def energy(self, V, x, omega) -> jax.Array:
+        """U(V, x; Omega) (J): strain energy of the shell at cavity volume V (m^3), pull x (m)."""
+        s = V - self.zero_pressure_volume(x, omega)
+        e = self._chamber_elastance(x, omega)
+        beta = self._stiffening()
+        chamber = e / beta**2 * (jnp.cosh(beta * s) - 1.0)
+        return self._shell_energy(x, omega) + chamber
+
+    def pressure(self, V, x, omega) -> jax.Array:
+        """Chamber elastic pressure dU/dV (Pa)."""
+        return jax.grad(self.energy, argnums=0)(V, x, omega)
+
+    def force(self, V, x, omega) -> jax.Array:
+        """Total cable force dU/dx (N), on all cables together."""
+        return jax.grad(self.energy, argnums=1)(V, x, omega)
+
+    def stiffness(self, V, x, omega) -> jax.Array:
+        """Chamber stiffness d2U/dV2 (Pa/m^3), positive everywhere by construction."""
+        s = V - self.zero_pressure_volume(x, omega)
+        return self._chamber_elastance(x, omega) * jnp.cosh(self._stiffening() * s)
+
+    def volume(self, pressure, x, omega) -> jax.Array:
+        """The unique cavity volume (m^3) at chamber pressure ``pressure`` (Pa) and pull x (m).
+
+        Closed form: ``V = V_eq + asinh(beta P / E) / beta``.
+        """
+        e = self._chamber_elastance(x, omega)
+        beta = self._stiffening()
+        return self.zero_pressure_volume(x, omega) + jnp.arcsinh(beta * pressure / e) / beta
+
+    def zero_pressure_force(self, x, omega) -> jax.Array:
+        """Cable force (N) at zero chamber pressure: W'(x)."""
+        return jax.grad(self._shell_energy)(x, omega)
+
+    # ------------------------------------------------------------------ user-facing summaries
+    def check(self, omega=None, shortening=None, pressure=None, *, extrapolate=False) -> bool:
+        """Check user inputs against the fitted domain.
+
+        Returns ``True`` when every given value is inside :attr:`domain`. Outside it, raise a
+        ``ValueError`` naming the parameter, unless ``extrapolate=True``: then return ``False``
+        (the caller flags the result as an extrapolation). Non-finite values always raise.
+        """
+        d = self.domain
+        checks = [
+            ("helix parameter Omega", omega, "-", d.omega, 1.0, (0.0, np.inf)),
+            ("shortening C", shortening, "-", d.shortening, 1.0, (0.0, 1.0)),
+            ("pressure", pressure, "mmHg", d.pressure_mmHg, mmHg, (-np.inf, np.inf)),
+        ]
+        inside = True
+        for name, value, unit, (lo, hi), scale, (hard_lo, hard_hi) in checks:
+            if value is None:
+                continue
+            # physically impossible values always raise
+            check_range(name, value, unit, hard_lo, hard_hi, hi_open=hard_hi == 1.0, scale=scale)
+            try:
+                check_range(f"{name} (fitted domain)", value, unit, lo, hi, scale=scale)
+            except ValueError:
+                if not extrapolate:
+                    raise
+                inside = False
+        return inside
+
+    def ejection_fraction(self, omega, shortening, pressure=0.0, *, extrapolate=False):
+        """EF = 1 - V(P, C L) / V_u (dimensionless), the volume drop at chamber pressure P (Pa).
+
+        At ``pressure = 0`` this is Table I's quantity (as a fraction, not percent). Raises outside
+        the fitted domain unless ``extrapolate=True``.
+        """
+        self.check(omega, shortening, pressure, extrapolate=extrapolate)
+        omega = jnp.asarray(omega, dtype=float)
+        x = shortening * self.cable_length(omega)
+        volume = self.volume(jnp.asarray(pressure, dtype=float), x, omega)
+        return 1.0 - volume / self.unloaded_volume
+
+    def three_fold_probability(self, omega, shortening) -> jax.Array:
+        """Smooth indicator (0..1) that the shell folds into three lobes rather than four."""
+        (omega_c, c_c), (w_o, w_c) = self.three_fold_boundary, self.three_fold_width
+        return jax.nn.sigmoid((omega_c - omega) / w_o) * jax.nn.sigmoid((shortening - c_c) / w_c)
+
+    def folds(self, omega, shortening, *, extrapolate=False) -> jax.Array:
+        """Predicted number of folds (3 or 4) of the contracted shell (Table I)."""
+        self.check(omega, shortening, extrapolate=extrapolate)
+        p3 = self.three_fold_probability(jnp.asarray(omega, float), jnp.asarray(shortening, float))
+        return jnp.where(p3 > 0.5, 3, 4)
+
+
+# --------------------------------------------------------------------------------- artifacts
+def _artifact_dir() -> Path:
+    """The folder holding the shipped surrogates, after an editable or a regular install."""
+    packaged = resources.files("cardiosoft") / "_surrogates"
+    if packaged.is_dir():
+        return Path(str(packaged))
+    repo = Path(__file__).resolve().parent.parent / "surrogates"
+    if repo.is_dir():
+        return repo
+    raise FileNotFoundError(
+        "no surrogates folder found: expected the package data cardiosoft/_surrogates or "
+        f"{repo} in a source checkout"
+    )
+
+
+def save(model: PumpSurrogate, path, card: dict) -> None:
+    """Write ``model`` to ``path`` (``.eqx``, equinox leaf serialisation) and its card (``.json``).
+
+    The card gets the format version and the sha256 of the weights file. Both files are written
+    whole (temporary file + rename).
+    """
+    from cardiosoft._cli import atomic_path
+
+    path = Path(path).with_suffix(".eqx")
+    with atomic_path(path) as tmp:
+        eqx.tree_serialise_leaves(tmp, model)
+        digest = sha256(tmp)
+    card = {
+        **card,
+        "format_version": FORMAT_VERSION,
+        "weights_file": path.name,
+        "weights_sha256": digest,
+    }
+    with atomic_path(path.with_suffix(".json")) as tmp:
+        tmp.write_text(json.dumps(card, indent=2) + "\n")
+
+
+def load_card(path=None) -> dict:
+    """The JSON model card of the surrogate at ``path`` (default: the shipped one)."""
+    weights = _resolve(path)
+    return json.loads(weights.with_suffix(".json").read_text())
+
+
+def _resolve(path) -> Path:
+    if path is None:
+        return _artifact_dir() / f"{DEFAULT_ARTIFACT}.eqx"
+    path = Path(path)
+    return path if path.suffix == ".eqx" else path.with_suffix(".eqx")
+
+
+def load(path=None) -> PumpSurrogate:
+    """Load a fitted :class:`PumpSurrogate`: the shipped default, or the artifact at ``path``.
+
+    ``path`` names the weights (``.eqx``) or the card (``.json``); the two sit side by side. The
+    card's format version and the weights' sha256 are checked; nothing is ever unpickled.
+    """
+    weights = _resolve(path)
+    card_path = weights.with_suffix(".json")
+    for p in (weights, card_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"surrogate file {p} not found")
+    card = json.loads(card_path.read_text())
+    if card.get("format_version") != FORMAT_VERSION:
+        raise ValueError(
+            f"{card_path}: format_version {card.get('format_version')!r} is not supported "
+            f"(this cardiosoft reads {FORMAT_VERSION})"
+        )
+    digest = sha256(weights)
+    if digest != card.get("weights_sha256"):
+        raise ValueError(
+            f"{weights}: sha256 {digest} does not match the card's {card.get('weights_sha256')}; "
+            "the weights were changed after the fit"
+        )
+    skeleton = PumpSurrogate(domain=Domain(**{k: tuple(v) for k, v in card["domain"].items()}))
+    # Deserialise into a float64 skeleton when x64 is on, float32 otherwise.
+    skeleton = jax.tree_util.tree_map(
+        lambda a: jnp.asarray(a, dtype=float) if eqx.is_array(a) else a, skeleton
+    )
+    return eqx.tree_deserialise_leaves(weights, skeleton)
+
+
+def volume_ml(v) -> np.ndarray:
+    """Convenience: a volume in m^3 as a numpy array in ml."""
+    return np.asarray(v) / ml

@@ -1,0 +1,122 @@
+"""The fit, end to end: data -> fitted surrogate + rig + model card."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cardiosoft import datasets
+from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, PumpSurrogate, save
+from cardiosoft.units import mm, mmHg
+from fit import pipeline, report
+
+PARAMETER_MEANINGS = {
+    "ef_linear": "EF_0 law: linear-in-C rate a(Omega) = softplus(p0 + p1 (Omega - 3)/2)",
+    "ef_quadratic": "EF_0 law: quadratic-in-C rate b(Omega), same form",
+    "buckling_twist": "EF_0 law: twist Omega*C at buckling onset, softplus(p)",
+    "buckling_width": "EF_0 law: width of the buckling step in Omega*C, softplus(p)",
+    "fold_depth": "EF_0 law: depth of the fold step s0 + s1 C, softplus each",
+    "three_fold_depth": "EF_0 law: extra depth of three-fold shells, softplus(p)",
+    "log_stiffness": "zero-pressure force W'(x) = K x / (1 + (x/x_b)^2)^g: "
+    "log K [N/m] at Omega 4 and its slope in (Omega - 4)/4",
+    "softening_exponent": "g - 0.5 = softplus(p): post-buckling decay of the force",
+    "log_chamber_elastance": "log E_u [Pa/m^3]: chamber stiffness of the unfolded shell at P = 0",
+    "fold_compliance": "kappa = softplus(p): E = E_u exp(-kappa EF_0), folding softens",
+    "log_stiffening": "log beta [1/m^3]: P = (E/beta) sinh(beta (V - V_eq))",
+    "three_fold_boundary": "(Omega, C) corner of the three-fold region (midpoints in the data)",
+    "three_fold_width": "transition widths of the three-fold indicator in Omega and C",
+}
+
+
+def initial_model() -> PumpSurrogate:
+    """The default parameters in the current float precision."""
+    return jax.tree_util.tree_map(
+        lambda a: jnp.asarray(a, dtype=float) if isinstance(a, jax.Array) else a,
+        PumpSurrogate(domain=Domain()),
+    )
+
+
+def three_fold_boundary(table1: datasets.Dataset) -> tuple[float, float]:
+    """Max-margin corner of the three-fold region: midpoints between the classes."""
+    o, c, f = (np.asarray(table1[k], float) for k in ("omega", "shortening", "folds"))
+    three = f == 3
+    if not three.any():
+        return 0.0, 1.0  # no three-fold cell: the region is empty in the domain
+    omega_c = 0.5 * (o[three].max() + o[~three & (c >= c[three].min())].min())
+    c_c = 0.5 * (c[three].min() + c[~three & (o <= o[three].max())].max())
+    return float(omega_c), float(c_c)
+
+
+def rig_from_card(card: dict) -> pipeline.Rig:
+    """The fitted rig recorded in a model card."""
+    rig = card["rig"]
+    return pipeline.Rig(
+        log_column_diameter=np.log(rig["column_diameter_mm"] * mm),
+        raw_cable_friction=np.log(np.expm1(rig["cable_friction_exponent"])),
+        log_fem_pressure=np.log(rig["fem_pressure_mmHg"] * mmHg),
+    )
+
+
+def fit(data: datasets.PaperData, progress=print):
+    """Fit stage 1 (with leave-one-out), the fold boundary and stage 2. Deterministic."""
+    t = pipeline.targets(data)
+    n = len(t.t1_ef)
+    masks = jnp.concatenate([jnp.ones((1, n)), 1.0 - jnp.eye(n)])
+    progress(
+        f"stage 1: zero-pressure law on Table I ({pipeline.N_STARTS} starts, "
+        f"plus {n} leave-one-out refits)"
+    )
+    start = eqx.tree_at(
+        lambda m: m.three_fold_boundary,
+        initial_model(),
+        jnp.asarray(three_fold_boundary(data.table1_fem)),
+    )
+    params, static = pipeline.fit_zero_pressure_law(start, t, masks)
+    stage1 = [jax.tree_util.tree_map(lambda a, i=i: a[i], params) for i in range(n + 1)]
+    loo = [
+        abs(
+            float(
+                pipeline.zero_pressure_ef(
+                    eqx.combine(stage1[i + 1], static), t.t1_omega[i], t.t1_shortening[i]
+                )
+            )
+            - t.t1_ef[i]
+        )
+        for i in range(n)
+    ]
+    vu_ml = float(initial_model().unloaded_volume) / 1e-6
+    model = eqx.combine(stage1[0], static)
+    progress(
+        f"stage 2: mechanics on the Fig. 10 bench and the FEM comparisons "
+        f"({pipeline.ADAM_STEPS} Adam steps)"
+    )
+    model, rig, history = pipeline.fit_mechanics(pipeline.mechanics_start(model), pipeline.Rig(), t)
+    history = np.asarray(history)
+    m = report.metrics(model, rig, data)
+    m["table1_loo_mae_ml"] = float(np.mean(loo) * vu_ml)
+    card = {
+        "name": DEFAULT_ARTIFACT,
+        "description": "Strain-energy surrogate U(V, x; Omega) of the paper's SS950 soft pump "
+        "(A 60 mm, B 30 mm, w 1.5 mm), fitted to Table I, the Fig. 10 bench and "
+        "the FEM comparisons; Table II held out.",
+        "data_sha256": data.hashes(),
+        "held_out": [data.table2_experiment.path.name],
+        "domain": Domain()._asdict(),
+        "parameters": PARAMETER_MEANINGS,
+        "rig": {
+            "column_diameter_mm": float(rig.column_diameter / mm),
+            "cable_friction_exponent": float(rig.cable_friction),
+            "fem_pressure_mmHg": float(rig.fem_pressure / mmHg),
+            "note": "fitted with the surrogate: the paper does not give them",
+        },
+        "metrics": m,
+        "stage2_loss": {"start": float(history[0]), "end": float(history[-1])},
+    }
+    return model, rig, card
+
+
+def save_artifact(model: PumpSurrogate, path, card: dict) -> None:
+    """Write the weights and the card (``cardiosoft.pump.save``)."""
+    save(model, path, card)
