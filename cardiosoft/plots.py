@@ -46,3 +46,49 @@ def plot_apex_motion(omegas, shortenings, dz_mm, dalpha_deg, path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=check_figure_path(path))
     plt.close(fig)
+
+
+def plot_fig10(result, path) -> None:
+    """Fig. 10-style summary of a run: (a) SV vs afterload, (b) ejected volume vs time,
+    (c) force vs cable displacement, (d) pressure-volume loop."""
+    from cardiosoft.units import ml, mm, mmHg
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(2, 2, figsize=(9, 7), constrained_layout=True)
+    members = [m for m in result.members if m.traces]
+    heads = [m.afterload / mmHg for m in result.members if m.afterload is not None]
+    if heads:
+        static = [m.metrics.get("static_stroke_volume", np.nan) / ml for m in result.members]
+        ax[0, 0].plot(heads, static, "s-", label="static (quasi-static pull)")
+        if members:
+            ax[0, 0].plot(
+                heads,
+                [m.metrics["stroke_volume"] / ml for m in result.members],
+                "o-",
+                label="dynamic (peak column rise)",
+            )
+        ax[0, 0].set_xlabel("afterload [mmHg]")
+        ax[0, 0].legend(fontsize=8)
+    else:
+        ax[0, 0].bar([m.label for m in members], [m.metrics["stroke_volume"] / ml for m in members])
+    ax[0, 0].set_ylabel("stroke volume [ml]")
+    ax[0, 0].set_title("(a) stroke volume", fontsize=10)
+    for m in members:
+        t = m.traces
+        ejected = t.get("column_volume", t["volume"].max() - t["volume"])
+        ax[0, 1].plot(t["time"], (ejected - ejected.min()) / ml, label=m.label)
+        ax[1, 0].plot(t["pull"] / mm, t["cable_force"], label=m.label)
+        ax[1, 1].plot(t["volume"] / ml, t["pump_pressure"] / mmHg, label=m.label)
+    ax[0, 1].set(xlabel="time in the beat [s]", ylabel="ejected volume [ml]")
+    ax[0, 1].set_title("(b) ejected volume, last beat", fontsize=10)
+    ax[1, 0].set(xlabel="cable displacement [mm]", ylabel="cable force [N]")
+    ax[1, 0].set_title("(c) force-displacement", fontsize=10)
+    ax[1, 1].set(xlabel="pump volume [ml]", ylabel="pump pressure [mmHg]")
+    ax[1, 1].set_title("(d) pressure-volume loop", fontsize=10)
+    for a in (ax[0, 1], ax[1, 0], ax[1, 1]):
+        a.legend(fontsize=8)
+    s = result.scene
+    fig.suptitle(f"{s.name}: Omega {s.omega:g}, C {s.shortening:g}, {s.bpm:g} bpm")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=check_figure_path(path), dpi=110)
+    plt.close(fig)

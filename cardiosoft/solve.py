@@ -19,8 +19,18 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from cardiosoft.circulation import inlet_pressure
+from cardiosoft.units import ml, mmHg
 
-__all__ = ["PRESETS", "SolverConfig", "integrate", "preset", "respond"]
+__all__ = [
+    "PERIODIC_SCALES",
+    "PRESETS",
+    "Beats",
+    "SolverConfig",
+    "integrate",
+    "periodic_beats",
+    "preset",
+    "respond",
+]
 
 
 class SolverConfig(eqx.Module):
@@ -186,3 +196,118 @@ def respond(block, inflow, ts, y0=None, config=None, *, jump_ts=None) -> jax.Arr
         reason = diffrax.RESULTS[result]
         raise RuntimeError(f"{message}: {reason} ({int(num_steps)} steps taken)")
     return p
+
+
+PERIODIC_SCALES = {
+    "volume": ml,
+    "flow": ml,  # per s
+    "column_volume": ml,
+    "pc": mmHg,
+    "pa": mmHg,
+}
+"""State leaves compared from beat to beat, with the unit of the steady-state tolerance (ml,
+ml/s, mmHg). Accumulators (``supplied_volume``, ``drained_volume``) grow every beat and are not
+compared."""
+ACCUMULATORS = frozenset({"supplied_volume", "drained_volume"})
+
+
+def _cycle_residual(y_start, y_end):
+    worst = jnp.zeros(())
+    flat, _ = jax.tree_util.tree_flatten_with_path(y_start)
+    ends = jax.tree_util.tree_leaves(y_end)
+    for (path, a), b in zip(flat, ends, strict=True):
+        name = path[-1].key
+        if name in ACCUMULATORS:
+            continue
+        if name not in PERIODIC_SCALES:
+            raise KeyError(f"state {jax.tree_util.keystr(path)} has no periodicity scale")
+        worst = jnp.maximum(worst, jnp.abs(b - a) / PERIODIC_SCALES[name])
+    return worst
+
+
+class Beats(eqx.Module):
+    """Result of :func:`periodic_beats` (SI)."""
+
+    ts: jax.Array
+    """Save times of the last beat, from 0 to the period (s)."""
+    ys: dict
+    """State at ``ts`` during the last beat (leaves with a leading time axis)."""
+    y0: dict
+    """State at the start of the last beat."""
+    beats: jax.Array
+    """Number of beats integrated."""
+    residual: jax.Array
+    """Largest change of a periodic state over the last beat (ml, ml/s or mmHg)."""
+    volume_drift: jax.Array
+    """Largest |total volume - initial total| at any beat's end, relative to the first."""
+    result: diffrax.RESULTS
+    """diffrax's result of the last solve (``successful`` unless a beat failed)."""
+    num_steps: jax.Array
+    """Solver steps of the last beat."""
+
+
+def periodic_beats(
+    field,
+    y0,
+    period,
+    ts,
+    *,
+    jump_ts,
+    total_volume,
+    max_beats: int,
+    tol,
+    config: SolverConfig | None = None,
+) -> Beats:
+    """Integrate beat after beat until the cycle-to-cycle change is below ``tol``.
+
+    **Arguments:**
+
+    - ``field``: the vector field, periodic in t with ``period`` (s); each beat runs over
+      ``[0, period]`` from the previous beat's end state.
+    - ``ts``: save times of a beat, increasing from 0, the last one equal to ``period``.
+    - ``y0``: the state at the start of the first beat; ``jump_ts``: kinks of the forcing in
+      ``[0, period]``; ``total_volume``: ``y -> m^3`` for the conservation check.
+    - ``max_beats`` (static): the most beats; with ``tol = 0`` exactly that many are run.
+    - ``tol``: steady-state tolerance in the units of :data:`PERIODIC_SCALES`.
+    - ``config``: a :class:`SolverConfig`.
+
+    Runs in one ``lax.while_loop``: jit it once, ``vmap`` it over parameters, and every element
+    stops at its own steady state (the batch runs until the slowest is done). A failed beat
+    stops its element and is reported in ``result``; nothing is raised.
+    """
+    config = preset("default") if config is None else config
+    ftype = jnp.result_type(float)
+    n_save = ts.shape[0]
+    v_ref = total_volume(y0)
+
+    def one_beat(y):
+        sol = integrate(field, y, 0.0, period, ts=ts, jump_ts=jump_ts, config=config)
+        return sol.ys, sol.result, sol.stats["num_steps"]
+
+    def body(carry):
+        y, _, beats, _, drift, _, _ = carry
+        ys, result, steps = one_beat(y)
+        y_end = jax.tree_util.tree_map(lambda a: a[-1], ys)
+        residual = _cycle_residual(y, y_end)
+        drift = jnp.maximum(drift, jnp.abs(total_volume(y_end) - v_ref) / jnp.abs(v_ref))
+        return y_end, ys, beats + 1, residual, drift, result, (steps, y)
+
+    def cond(carry):
+        _, _, beats, residual, _, result, _ = carry
+        ok = result == diffrax.RESULTS.successful
+        return ok & (beats < max_beats) & ((beats == 0) | (residual > tol))
+
+    ys0 = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_save, *jnp.shape(a))), y0)
+    carry = (
+        y0,
+        ys0,
+        jnp.array(0),
+        jnp.array(jnp.inf, ftype),
+        jnp.zeros((), ftype),
+        diffrax.RESULTS.successful,
+        (jnp.array(0), y0),
+    )
+    _, ys, beats, residual, drift, result, (steps, y_start) = jax.lax.while_loop(
+        cond, body, carry
+    )
+    return Beats(ts, ys, y_start, beats, residual, drift, result, steps)

@@ -1,0 +1,177 @@
+"""The pump coupled to its surroundings: a vector field with only the chosen effects.
+
+A :class:`PumpCircuit` composes the pump surrogate, the cable actuation, an afterload (the
+paper's water-column bench, a Windkessel) and, optionally, valves and a preload. Its state is a
+dict:
+
+- ``"volume"``: the pump's cavity volume V (m^3), always;
+- ``"flow"``: the outflow q through the outlet line (m^3/s), only when the line has an
+  inertance (tube or column inertia, a Windkessel-4 inductance). Without one, q is algebraic;
+- ``"afterload"``: the afterload's own state (e.g. the column's risen volume, a capacitor
+  pressure);
+- ``"preload"``: the preload's state, only with a preload.
+
+Equations (SI):
+
+- ``dV/dt = q_in - q``;
+- with an inertance L: ``L dq/dt = P_pump - P_node - R q - K q|q|``;
+- without: ``q`` solves ``P_pump - P_node = R q + K q|q|`` in closed form, or the valve law
+  ``q = valve(P_pump - P_node) / (R_valve + R)``;
+- ``q_in = valve_in(P_preload - P_pump)`` with a preload.
+
+``P_pump = dU/dV`` of the surrogate at the prescribed cable pull x(t). Effects that are not
+chosen are absent: a Python-level (static) decision removes their state and their terms from
+the traced function.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from cardiosoft.actuation import CablePull
+from cardiosoft.circulation import AbstractAfterload, AbstractPreload, Valve
+from cardiosoft.pump import PumpSurrogate
+
+__all__ = ["CableFriction", "PumpCircuit"]
+
+
+class CableFriction(eqx.Module):
+    """Capstan friction of the cables in the base holes, seen by the load cell on the disk.
+
+    ``F_disk = F_shell exp(mu_theta tanh(v / v_s))``: larger than the shell's force while
+    pulling, smaller while releasing; the difference is dissipated. It changes the measured
+    force and mechanical work, not the hydraulics (the pull is prescribed).
+
+    - ``exponent``: mu theta (dimensionless, >= 0), fitted with the surrogate (model card).
+    - ``speed_scale``: v_s (m/s) of the smooth sign; 1 mm/s.
+    """
+
+    exponent: jax.Array = eqx.field(converter=jnp.asarray)
+    speed_scale: jax.Array = eqx.field(converter=jnp.asarray, default=1e-3)
+
+    def factor(self, velocity):
+        return jnp.exp(self.exponent * jnp.tanh(velocity / self.speed_scale))
+
+
+class PumpCircuit(eqx.Module):
+    """The pump's vector field; see the module docstring.
+
+    **Arguments:**
+
+    - ``pump``: the :class:`~cardiosoft.pump.PumpSurrogate`; ``omega``: its helix parameter.
+    - ``actuation``: the prescribed cable pull x(t), a :class:`~cardiosoft.actuation.CablePull`.
+    - ``afterload``: an :class:`~cardiosoft.circulation.AbstractAfterload`.
+    - ``outlet_valve``, ``inlet_valve``: :class:`~cardiosoft.circulation.Valve` or None.
+    - ``preload``: an :class:`~cardiosoft.circulation.AbstractPreload` or None (needs an inlet
+      valve).
+    - ``cable_friction``: a :class:`CableFriction` or None.
+    """
+
+    pump: PumpSurrogate
+    omega: jax.Array = eqx.field(converter=jnp.asarray)
+    actuation: CablePull
+    afterload: AbstractAfterload
+    outlet_valve: Valve | None = None
+    inlet_valve: Valve | None = None
+    preload: AbstractPreload | None = None
+    cable_friction: CableFriction | None = None
+
+    def __check_init__(self):
+        if (self.preload is None) != (self.inlet_valve is None):
+            raise ValueError("a preload needs an inlet valve, and an inlet valve needs a preload")
+        y = self.afterload.init()
+        inertia = self.afterload.line_inertance(y) is not None
+        if inertia and self.outlet_valve is not None:
+            raise ValueError(
+                "an outlet valve in series with an inertance is not supported: drop the "
+                "inertance effects (or the Windkessel-4 inductance) or the outlet valve"
+            )
+        if (
+            not inertia
+            and self.outlet_valve is None
+            and (self.afterload.line_resistance(y) is None and self.afterload.line_loss(y) is None)
+        ):
+            raise ValueError(
+                "the outlet line has neither inertance, resistance nor a valve: the outflow is "
+                "undetermined; add tube_resistance or tube_inertia, or use a static scene"
+            )
+
+    @property
+    def has_flow_state(self) -> bool:
+        """Whether the outflow is a state (the line has an inertance); static."""
+        return self.afterload.line_inertance(self.afterload.init()) is not None
+
+    def init(self) -> dict:
+        """Rest state: no pull, the pump filled at the preload (or afterload) pressure."""
+        ya = self.afterload.init()
+        y = {"afterload": ya}
+        if self.preload is not None:
+            y["preload"] = self.preload.init()
+            p_fill = self.preload.pressure(y["preload"])
+        else:
+            p_fill = self.afterload.node_pressure(ya)
+        y["volume"] = self.pump.volume(p_fill, self.actuation(0.0), self.omega)
+        if self.has_flow_state:
+            y["flow"] = jnp.zeros_like(y["volume"])
+        return y
+
+    def _algebraic_outflow(self, ya, dp):
+        r = self.afterload.line_resistance(ya)
+        if self.outlet_valve is not None:
+            return self.outlet_valve.flow(dp, 0.0 if r is None else r)
+        k = self.afterload.line_loss(ya)
+        if k is None:
+            return dp / r
+        # R q + K q|q| = dp: the root of the quadratic, in the form without cancellation
+        r = jnp.zeros_like(dp) if r is None else r
+        return 2.0 * dp / (r + jnp.sqrt(r**2 + 4.0 * k * jnp.abs(dp)))
+
+    def signals(self, t, y) -> dict:
+        """Everything observable at time t (SI): pull, pressures, flows, forces."""
+        x = self.actuation(t)
+        volume = y["volume"]
+        ya = y["afterload"]
+        p_pump = self.pump.pressure(volume, x, self.omega)
+        p_node = self.afterload.node_pressure(ya)
+        q_out = y["flow"] if self.has_flow_state else self._algebraic_outflow(ya, p_pump - p_node)
+        out = {"pull": x, "pump_pressure": p_pump, "node_pressure": p_node, "outflow": q_out}
+        if self.preload is not None:
+            p_pre = self.preload.pressure(y["preload"])
+            out["preload_pressure"] = p_pre
+            out["inflow"] = self.inlet_valve.flow(p_pre - p_pump)
+        force = self.pump.force(volume, x, self.omega)
+        out["shell_force"] = force
+        if self.cable_friction is not None:
+            force = force * self.cable_friction.factor(self.actuation.velocity(t))
+        out["cable_force"] = force
+        return out
+
+    def __call__(self, t, y, args=None) -> dict:
+        s = self.signals(t, y)
+        q_in = s.get("inflow", 0.0)
+        dy = {
+            "volume": q_in - s["outflow"],
+            "afterload": self.afterload.node_rhs(y["afterload"], s["outflow"]),
+        }
+        if self.preload is not None:
+            dy["preload"] = self.preload.rhs(y["preload"], q_in)
+        if self.has_flow_state:
+            ya, q = y["afterload"], y["flow"]
+            drop = s["pump_pressure"] - s["node_pressure"]
+            r = self.afterload.line_resistance(ya)
+            if r is not None:
+                drop = drop - r * q
+            k = self.afterload.line_loss(ya)
+            if k is not None:
+                drop = drop - k * q * jnp.abs(q)
+            dy["flow"] = drop / self.afterload.line_inertance(ya)
+        return dy
+
+    def total_volume(self, y) -> jax.Array:
+        """Pump + afterload + preload volume bookkeeping (m^3); constant in time."""
+        total = y["volume"] + self.afterload.stored_volume(y["afterload"])
+        if self.preload is not None:
+            total = total + self.preload.stored_volume(y["preload"])
+        return total

@@ -1,0 +1,364 @@
+"""``run(scene, **overrides)``: the simulation behind ``python -m cardiosoft.simulate``.
+
+A scene is built into one :class:`~cardiosoft.circuit.PumpCircuit` per afterload; the circuits
+are stacked and solved in one jitted, ``vmap``-ed call (sharded over ``jax.devices()`` when
+there are several), beat after beat until each reaches its periodic steady state. A member that
+fails is reported by name in its record; the others are unaffected.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cardiosoft._validate import check_range
+from cardiosoft.actuation import CablePull
+from cardiosoft.circuit import CableFriction, PumpCircuit
+from cardiosoft.circulation import AtrialSource, Bench, Tube, Valve, WaterColumn, Windkessel3
+from cardiosoft.metrics import BeatMetrics, beat_metrics
+from cardiosoft.pump import PumpSurrogate, load
+from cardiosoft.scene import Scene, load_scene
+from cardiosoft.solve import periodic_beats, preset
+from cardiosoft.static import column_stiffness, quasi_static_stroke
+from cardiosoft.units import bpm, ml, mmHg
+
+__all__ = ["MemberResult", "RunResult", "build_circuit", "run"]
+
+N_PULL_SAMPLES = 201
+N_REST_SAMPLES = 200
+
+
+@dataclasses.dataclass(frozen=True)
+class MemberResult:
+    """One afterload of a run. Metrics and traces are SI (see :mod:`cardiosoft.metrics`)."""
+
+    label: str
+    afterload: float | None
+    """Column head (Pa) for the bench; None for a Windkessel scene."""
+    ok: bool
+    message: str
+    beats: int
+    residual: float
+    """Cycle-to-cycle change of the last beat (ml, ml/s or mmHg)."""
+    volume_drift: float
+    """Largest relative drift of the total fluid volume over the run."""
+    metrics: dict[str, float]
+    """:class:`~cardiosoft.metrics.BeatMetrics` fields, plus ``static_*`` for the bench."""
+    traces: dict[str, np.ndarray]
+    """Last beat: time, pull, volume, pressures, flows, forces (SI)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunResult:
+    """What :func:`run` returns: the scene as run and one :class:`MemberResult` per afterload."""
+
+    scene: Scene
+    members: tuple[MemberResult, ...]
+
+    @property
+    def ok(self) -> bool:
+        return all(m.ok for m in self.members)
+
+
+def _circuit(scene: Scene, pump: PumpSurrogate, afterload) -> PumpCircuit:
+    stroke = scene.shortening * pump.cable_length(scene.omega)
+    actuation = CablePull(
+        stroke,
+        1.0 / (scene.bpm * bpm),
+        scene.pull_fraction,
+        scene.hold_fraction,
+        scene.release_fraction,
+        shape=scene.shape,
+    )
+    friction = CableFriction(scene.cable_friction) if scene.has("cable_friction") else None
+    if scene.afterload_type == "water_column":
+        column = WaterColumn(
+            scene.column_diameter,
+            afterload,
+            rise=scene.has("column_rise"),
+            inertia=scene.has("column_inertia"),
+        )
+        tube = Tube(
+            scene.tube_length,
+            scene.tube_diameter,
+            loss_coefficient=scene.loss_coefficient,
+            inertia=scene.has("tube_inertia"),
+            resistance=scene.has("tube_resistance"),
+            minor_loss=scene.has("minor_loss"),
+        )
+        return PumpCircuit(
+            pump, scene.omega, actuation, Bench(tube, column), cable_friction=friction
+        )
+    rp, c, rd = scene.windkessel
+    r_in, r_out = scene.valve_resistance
+    return PumpCircuit(
+        pump,
+        scene.omega,
+        actuation,
+        Windkessel3(rp, c, rd, scene.venous_pressure),
+        outlet_valve=Valve(r_out, scene.valve_kind, scene.valve_smoothing),
+        inlet_valve=Valve(r_in, scene.valve_kind, scene.valve_smoothing),
+        preload=AtrialSource(scene.preload_pressure),
+        cable_friction=friction,
+    )
+
+
+def build_circuit(scene: Scene, pump: PumpSurrogate | None = None, afterload=None):
+    """The :class:`PumpCircuit` of ``scene`` (for the bench: at column head ``afterload``, Pa)."""
+    pump = load() if pump is None else pump
+    if scene.afterload_type == "water_column" and afterload is None:
+        afterload = scene.afterloads[0]
+    return _circuit(scene, pump, afterload)
+
+
+def _save_times(actuation: CablePull):
+    """Samples of one beat with the end of the pull on the grid (first N_PULL_SAMPLES)."""
+    t_pull = actuation.pull_fraction * actuation.period
+    pull = jnp.linspace(0.0, 1.0, N_PULL_SAMPLES) * t_pull
+    rest = t_pull + jnp.linspace(0.0, 1.0, N_REST_SAMPLES + 1)[1:] * (actuation.period - t_pull)
+    return jnp.concatenate([pull, rest])
+
+
+def _reference_pressure(circuit: PumpCircuit, beats, signals):
+    if circuit.preload is None:  # the bench: the column head before the pull
+        return circuit.afterload.node_pressure(circuit.afterload.init())
+    return jnp.mean(signals["node_pressure"])  # a Windkessel: mean afterload pressure
+
+
+@eqx.filter_jit
+def _simulate(circuits: PumpCircuit, max_beats: int, tol, config):
+    def one(circuit: PumpCircuit):
+        ts = _save_times(circuit.actuation)
+        beats = periodic_beats(
+            circuit,
+            circuit.init(),
+            circuit.actuation.period,
+            ts,
+            jump_ts=circuit.actuation.kink_times(1),
+            total_volume=circuit.total_volume,
+            max_beats=max_beats,
+            tol=tol,
+            config=config,
+        )
+        signals = jax.vmap(circuit.signals)(beats.ts, beats.ys)
+        metrics = beat_metrics(
+            beats.ts,
+            beats.ys["volume"],
+            signals,
+            N_PULL_SAMPLES,
+            circuit.actuation.period,
+            _reference_pressure(circuit, beats, signals),
+        )
+        return beats, signals, metrics
+
+    return jax.vmap(one)(circuits)
+
+
+@eqx.filter_jit
+def _static_strokes(pump: PumpSurrogate, omega, stroke, afterloads, k, friction):
+    out = jax.vmap(lambda p: quasi_static_stroke(pump, omega, stroke, p, k))(afterloads)
+    factor = jnp.exp(friction)
+    return out.stroke_volume, factor * out.peak_force, factor * out.mechanical_work
+
+
+def _stack(trees):
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def _shard(tree):
+    """Spread the batch over all devices when it divides evenly (one CPU: unchanged)."""
+    devices = jax.devices()
+    n = jax.tree_util.tree_leaves(tree)[0].shape[0]
+    if len(devices) < 2 or n % len(devices):
+        return tree
+    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+    return jax.tree_util.tree_map(
+        lambda a: jax.device_put(a, sharding) if eqx.is_array(a) else a, tree
+    )
+
+
+def _overrides(scene: Scene, omega, shortening, bpm_value, afterload, accuracy) -> Scene:
+    changes = {}
+    if omega is not None:
+        check_range("omega", omega, "", *scene_domain()["omega"])
+        changes["omega"] = float(omega)
+    if shortening is not None:
+        check_range("shortening C", shortening, "", *scene_domain()["shortening"])
+        changes["shortening"] = float(shortening)
+    if bpm_value is not None:
+        check_range("bpm", bpm_value, "bpm", 0.0, 300.0, lo_open=True)
+        changes["bpm"] = float(bpm_value)
+    if afterload is not None:
+        if scene.afterload_type != "water_column":
+            raise ValueError(
+                f"afterload: scene {scene.name} has a {scene.afterload_type} "
+                "afterload; --afterload sets water-column heads"
+            )
+        values = tuple(float(a) for a in np.atleast_1d(afterload))
+        check_range("afterload", values, "mmHg", 0.0, 150.0)
+        changes["afterloads"] = tuple(v * mmHg for v in values)
+    if accuracy is not None:
+        if accuracy not in ("fast", "default", "reference"):
+            raise ValueError(f"accuracy = {accuracy!r}: allowed fast, default, reference")
+        changes["accuracy"] = accuracy
+    return scene.replace(**changes) if changes else scene
+
+
+def scene_domain() -> dict:
+    """Allowed design ranges (the surrogate's fitted domain)."""
+    return {"omega": (0.0, 6.0), "shortening": (0.0, 0.65)}
+
+
+def run(
+    scene="bench-dynamic",
+    *,
+    omega=None,
+    shortening=None,
+    bpm=None,
+    afterload=None,
+    beats=None,
+    accuracy=None,
+    pump: PumpSurrogate | None = None,
+) -> RunResult:
+    """Simulate a scene; the Python twin of ``python -m cardiosoft.simulate``.
+
+    **Arguments** (user units; None keeps the scene's value):
+
+    - ``scene``: a shipped scene name, a path to a scene file, or a :class:`Scene`.
+    - ``omega``: helix parameter, [0, 6]; ``shortening``: C, [0, 0.65].
+    - ``bpm``: beats per minute, (0, 300].
+    - ``afterload``: column head(s) in mmHg, [0, 150] (water-column scenes).
+    - ``beats``: run exactly this many beats instead of stopping at the steady state.
+    - ``accuracy``: "fast", "default" or "reference".
+    - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate` (default: the shipped one).
+
+    **Returns:** a :class:`RunResult`. Bad input raises ``ValueError`` naming the parameter.
+    """
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene = _overrides(scene, omega, shortening, bpm, afterload, accuracy)
+    if beats is not None:
+        check_range("beats", beats, "beats", 1, 500)
+    pump = load() if pump is None else pump
+    heads = scene.afterloads if scene.afterload_type == "water_column" else (None,)
+    labels = [f"{h / mmHg:g} mmHg" if h is not None else scene.name for h in heads]
+
+    static = None
+    if scene.afterload_type == "water_column":
+        k = (
+            column_stiffness(0.25 * math.pi * scene.column_diameter**2, 998.0, 9.80665)
+            if scene.has("column_rise")
+            else 0.0
+        )
+        friction = scene.cable_friction if scene.has("cable_friction") else 0.0
+        stroke = scene.shortening * pump.cable_length(scene.omega)
+        static = [
+            np.asarray(a)
+            for a in _static_strokes(pump, scene.omega, stroke, jnp.asarray(heads), k, friction)
+        ]
+
+    if scene.static:
+        members = tuple(
+            MemberResult(
+                label, h, True, "quasi-static", 0, 0.0, 0.0, _static_metrics(static, i, h), {}
+            )
+            for i, (label, h) in enumerate(zip(labels, heads, strict=True))
+        )
+        return RunResult(scene, members)
+
+    circuits = _shard(_stack([_circuit(scene, pump, h) for h in heads]))
+    config = preset(scene.accuracy, stiff=scene.has("valves"))
+    max_beats, tol = (beats, 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
+    out, signals, metrics = _simulate(circuits, int(max_beats), tol, config)
+    members = []
+    for i, (label, h) in enumerate(zip(labels, heads, strict=True)):
+        code = int(np.asarray(out.result._value)[i])
+        ok = code == int(diffrax.RESULTS.successful._value)
+        m = {f.name: float(getattr(metrics, f.name)[i]) for f in dataclasses.fields(BeatMetrics)}
+        if static is not None:
+            m |= _static_metrics(static, i, h)
+        n_beats = int(out.beats[i])
+        residual = float(out.residual[i])
+        converged = beats is not None or residual <= scene.steady_tol
+        message = (
+            "ok"
+            if ok and converged
+            else (
+                f"solver failed in beat {n_beats}: {_result_message(code)}"
+                if not ok
+                else f"not steady after {n_beats} beats (cycle change {residual:.3g} > "
+                f"{scene.steady_tol:g})"
+            )
+        )
+        traces = {"time": np.asarray(out.ts[i]), "volume": np.asarray(out.ys["volume"][i])}
+        traces |= {k: np.asarray(v[i]) for k, v in signals.items()}
+        if "afterload" in out.ys and "column_volume" in out.ys["afterload"]:
+            traces["column_volume"] = np.asarray(out.ys["afterload"]["column_volume"][i])
+        members.append(
+            MemberResult(
+                label,
+                h,
+                ok and converged,
+                message,
+                n_beats,
+                residual,
+                float(out.volume_drift[i]),
+                m,
+                traces,
+            )
+        )
+    return RunResult(scene, tuple(members))
+
+
+def _result_message(code: int) -> str:
+    """diffrax's message for a result code (its table is not public API; fall back to the code)."""
+    table = getattr(diffrax.RESULTS, "_index_to_message", None)
+    try:
+        return str(table[code]).strip() or f"diffrax result code {code}"
+    except (TypeError, IndexError, KeyError):
+        return f"diffrax result code {code}"
+
+
+def _static_metrics(static, i, head) -> dict[str, float]:
+    sv, force, work = (float(a[i]) for a in static)
+    return {
+        "static_stroke_volume": sv,
+        "static_peak_force": force,
+        "static_mech_work": work,
+        "static_efficiency": head * sv / work,
+    }
+
+
+def summary_records(result: RunResult) -> list[dict]:
+    """One JSON-ready record per member, in user units (``summary.json``)."""
+    records = []
+    for m in result.members:
+        x = m.metrics
+        dynamic = not result.scene.static
+        records.append(
+            {
+                "label": m.label,
+                "afterload_mmHg": None if m.afterload is None else m.afterload / mmHg,
+                "static_sv_ml": x.get("static_stroke_volume", math.nan) / ml,
+                "dynamic_sv_ml": x["stroke_volume"] / ml if dynamic else None,
+                "peak_force_N": x["peak_force"] if dynamic else x["static_peak_force"],
+                "mech_work_J": x["mech_work"] if dynamic else x["static_mech_work"],
+                "efficiency": x["efficiency"] if dynamic else x["static_efficiency"],
+                "ef": x["ejection_fraction"] if dynamic else None,
+                "edv_ml": x["edv"] / ml if dynamic else None,
+                "esv_ml": x["esv"] / ml if dynamic else None,
+                "cardiac_output_l_min": x["cardiac_output"] / ml * 60 / 1000 if dynamic else None,
+                "beats": m.beats,
+                "steady_residual": m.residual,
+                "volume_drift": m.volume_drift,
+                "ok": m.ok,
+                "message": m.message,
+            }
+        )
+    return records

@@ -1,0 +1,79 @@
+"""Beat metrics from the traces of a periodic steady state (DESIGN.md section 3.5).
+
+All quantities are SI. The paper's definitions (section II-F): stroke volume SV as the volume
+ejected into the afterload (for the bench, the peak rise of the column); hydraulic work
+``H = P_a SV``; mechanical work ``M`` the integral of the measured cable force over the cable
+displacement during the pull; efficiency ``e = H / M``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+__all__ = ["BeatMetrics", "beat_metrics", "trapezoid"]
+
+
+def trapezoid(y, x):
+    """Trapezoidal integral of samples ``y`` over ``x`` (last axis)."""
+    return jnp.sum(0.5 * (y[..., 1:] + y[..., :-1]) * jnp.diff(x, axis=-1), axis=-1)
+
+
+class BeatMetrics(eqx.Module):
+    """Metrics of one beat (SI)."""
+
+    edv: jax.Array
+    """End-diastolic (largest) pump volume (m^3)."""
+    esv: jax.Array
+    """End-systolic (smallest) pump volume (m^3)."""
+    stroke_volume: jax.Array
+    """EDV - ESV (m^3): for the bench the peak column rise, the paper's dynamic SV."""
+    ejection_fraction: jax.Array
+    """SV / EDV."""
+    cardiac_output: jax.Array
+    """SV / period (m^3/s)."""
+    peak_force: jax.Array
+    """Largest measured cable force during the pull (N)."""
+    mech_work: jax.Array
+    """Integral of the measured cable force over the pull, the paper's M (J)."""
+    reference_pressure: jax.Array
+    """P_a: the column head before the pull, or the mean afterload pressure (Pa)."""
+    hydraulic_work_paper: jax.Array
+    """P_a SV, the paper's hydraulic work (J)."""
+    hydraulic_work_pull: jax.Array
+    """Integral of P_pump dV_out during the pull: the work the pump really did (J)."""
+    stroke_work: jax.Array
+    """Area of the pressure-volume loop, -(closed integral of P_pump dV) (J)."""
+    efficiency: jax.Array
+    """P_a SV / M, the paper's efficiency."""
+
+
+def beat_metrics(ts, volume, signals, n_pull: int, period, reference_pressure) -> BeatMetrics:
+    """Metrics from the last beat's samples.
+
+    ``ts`` (s), ``volume`` (m^3) and the ``signals`` of :meth:`PumpCircuit.signals` are sampled
+    over one period; the first ``n_pull`` samples (static) span exactly the pull phase.
+    """
+    edv, esv = jnp.max(volume), jnp.min(volume)
+    sv = edv - esv
+    force, pull = signals["cable_force"][:n_pull], signals["pull"][:n_pull]
+    mech = trapezoid(force, pull)
+    p_pump, q_out = signals["pump_pressure"], signals["outflow"]
+    hyd_pull = trapezoid(p_pump[:n_pull] * q_out[:n_pull], ts[:n_pull])
+    stroke_work = -trapezoid(p_pump, volume)
+    h_paper = reference_pressure * sv
+    return BeatMetrics(
+        edv=edv,
+        esv=esv,
+        stroke_volume=sv,
+        ejection_fraction=sv / edv,
+        cardiac_output=sv / period,
+        peak_force=jnp.max(force),
+        mech_work=mech,
+        reference_pressure=reference_pressure,
+        hydraulic_work_paper=h_paper,
+        hydraulic_work_pull=hyd_pull,
+        stroke_work=stroke_work,
+        efficiency=h_paper / mech,
+    )

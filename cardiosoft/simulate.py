@@ -1,0 +1,282 @@
+"""Command line: simulate the soft pump in a scene and print what a researcher asks first.
+
+    python -m cardiosoft.simulate --bpm 60
+    python -m cardiosoft.simulate --bpm 30 --compare-paper --out results/
+
+Runs the ``bench-dynamic`` scene (the paper's water-column bench) at 30, 60 and 90 mmHg by
+default and prints stroke volumes, peak force, mechanical work, efficiency and the beats to
+steady state. ``--out DIR`` writes ``summary.json``, ``traces.csv`` and a Fig. 10-style figure.
+The numerics live in :func:`cardiosoft.experiment.run`; this module only parses and prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+OUTPUT_FILES = ("summary.json", "traces.csv", "figure.png")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m cardiosoft.simulate",
+        description="Simulate the cable-driven soft pump beating against an afterload.",
+    )
+    p.add_argument(
+        "--scene",
+        default="bench-dynamic",
+        help="shipped scene (bench-static, bench-dynamic, lv-systemic, rv-pulmonary) "
+        "or a scene .toml file (default: bench-dynamic)",
+    )
+    p.add_argument("--bpm", type=float, help="beats per minute, (0, 300] (default: the scene's)")
+    p.add_argument("--omega", type=float, help="helix parameter Omega, [0, 6]")
+    p.add_argument("--shortening", type=float, help="cable shortening C, [0, 0.65]")
+    p.add_argument(
+        "--afterload",
+        type=float,
+        nargs="+",
+        metavar="MMHG",
+        help="water-column head(s) at the pump base in mmHg, [0, 150]",
+    )
+    p.add_argument("--beats", type=int, help="run exactly this many beats (default: until steady)")
+    p.add_argument(
+        "--accuracy",
+        choices=("fast", "default", "reference"),
+        help="solver preset (default: the scene's)",
+    )
+    p.add_argument(
+        "--compare-paper",
+        action="store_true",
+        help="print the paper's 30-bpm bench values (Fig. 10) beside the model's",
+    )
+    p.add_argument("--out", metavar="DIR", help="write summary.json, traces.csv, figure.png")
+    p.add_argument("--no-plot", action="store_true", help="with --out: skip the figure")
+    p.add_argument("--force", action="store_true", help="overwrite existing files in --out")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    return p
+
+
+def _fmt(value, spec):
+    return (
+        "-"
+        if value is None or (isinstance(value, float) and math.isnan(value))
+        else format(value, spec)
+    )
+
+
+def _table(records, scene, paper) -> str:
+    bench = scene.afterload_type == "water_column"
+    head = (
+        [
+            "afterload",
+            "static SV",
+            "dynamic SV",
+            "peak force",
+            "mech. work",
+            "efficiency",
+            "EF",
+            "beats",
+        ]
+        if bench
+        else ["scene", "SV", "EDV", "ESV", "EF", "CO", "peak force", "mech. work", "beats"]
+    )
+    units = (
+        ["mmHg", "ml", "ml", "N", "J", "-", "-", ""]
+        if bench
+        else ["", "ml", "ml", "ml", "-", "l/min", "N", "J", ""]
+    )
+    rows = []
+    for r in records:
+        if bench:
+            row = [
+                _fmt(r["afterload_mmHg"], ".0f"),
+                _fmt(r["static_sv_ml"], ".1f"),
+                _fmt(r["dynamic_sv_ml"], ".1f"),
+                _fmt(r["peak_force_N"], ".1f"),
+                _fmt(r["mech_work_J"], ".2f"),
+                _fmt(r["efficiency"], ".3f"),
+                _fmt(r["ef"], ".2f"),
+                str(r["beats"]),
+            ]
+        else:
+            row = [
+                r["label"],
+                _fmt(r["dynamic_sv_ml"], ".1f"),
+                _fmt(r["edv_ml"], ".1f"),
+                _fmt(r["esv_ml"], ".1f"),
+                _fmt(r["ef"], ".2f"),
+                _fmt(r["cardiac_output_l_min"], ".2f"),
+                _fmt(r["peak_force_N"], ".1f"),
+                _fmt(r["mech_work_J"], ".2f"),
+                str(r["beats"]),
+            ]
+        rows.append(row)
+        if paper is not None and r.get("afterload_mmHg") in paper:
+            p = paper[r["afterload_mmHg"]]
+            rows.append(
+                [
+                    "  paper",
+                    f"{p['static_sv_ml']:.1f}",
+                    f"{p['dynamic_sv_ml']:.1f}",
+                    f"{p['peak_force_N']:.1f}",
+                    f"{p['mech_work_J']:.2f}",
+                    f"{p['efficiency']:.3f}",
+                    "-",
+                    "-",
+                ]
+            )
+    widths = [max(len(x) for x in col) for col in zip(head, units, *rows, strict=True)]
+    line = "  ".join
+    out = [
+        line(h.rjust(w) for h, w in zip(head, widths, strict=True)),
+        line(u.rjust(w) for u, w in zip(units, widths, strict=True)),
+    ]
+    out += [line(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
+    return "\n".join(out)
+
+
+def _paper_values():
+    from cardiosoft import datasets
+    from cardiosoft.units import mmHg
+
+    b = datasets.load_paper_data().fig10_bench
+    return {
+        float(b["afterload_mmHg"][i]): {
+            "static_sv_ml": float(b["static_sv_ml"][i]),
+            "dynamic_sv_ml": float(b["dynamic_sv_ml"][i]),
+            "peak_force_N": float(b["peak_force_N"][i]),
+            "efficiency": float(b["efficiency"][i]),
+            "mech_work_J": float(
+                b["afterload_mmHg"][i] * mmHg * b["dynamic_sv_ml"][i] * 1e-6 / b["efficiency"][i]
+            ),
+        }
+        for i in range(len(b))
+    }
+
+
+def _write_outputs(out_dir: Path, result, records, plot: bool) -> list[Path]:
+    """Write every file to a staging folder first, then move them all into place."""
+    import shutil
+    import tempfile
+
+    from cardiosoft.units import ml, mm, mmHg
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=out_dir, prefix=".staging-"))
+    try:
+        (staging / "summary.json").write_text(
+            json.dumps(
+                {
+                    "scene": result.scene.name,
+                    "bpm": result.scene.bpm,
+                    "omega": result.scene.omega,
+                    "shortening": result.scene.shortening,
+                    "records": records,
+                },
+                indent=2,
+            )
+            + "\n"
+        )
+        columns = [
+            ("time_s", "time", 1.0),
+            ("pull_mm", "pull", mm),
+            ("volume_ml", "volume", ml),
+            ("pump_pressure_mmHg", "pump_pressure", mmHg),
+            ("afterload_pressure_mmHg", "node_pressure", mmHg),
+            ("outflow_ml_per_s", "outflow", ml),
+            ("cable_force_N", "cable_force", 1.0),
+            ("column_volume_ml", "column_volume", ml),
+        ]
+        with open(staging / "traces.csv", "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(["member", *[c[0] for c in columns]])
+            for m in result.members:
+                n = len(m.traces.get("time", []))
+                for k in range(n):
+                    writer.writerow(
+                        [
+                            m.label,
+                            *[
+                                f"{m.traces[key][k] / scale:.8g}" if key in m.traces else ""
+                                for _, key, scale in columns
+                            ],
+                        ]
+                    )
+        written = ["summary.json", "traces.csv"]
+        if plot:
+            from cardiosoft.plots import plot_fig10
+
+            plot_fig10(result, staging / "figure.png")
+            written.append("figure.png")
+        targets = [out_dir / name for name in written]
+        for name, target in zip(written, targets, strict=True):
+            (staging / name).replace(target)
+        return targets
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from cardiosoft._cli import fail, refuse_overwrite
+    from cardiosoft.experiment import run, summary_records
+    from cardiosoft.scene import load_scene
+
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
+    try:
+        out_dir = Path(args.out) if args.out else None
+        if out_dir is not None:
+            if out_dir.exists() and not out_dir.is_dir():
+                raise ValueError(f"--out {out_dir} exists and is not a folder")
+            for name in OUTPUT_FILES:
+                refuse_overwrite(out_dir / name, args.force)
+        scene = load_scene(args.scene)
+        if args.compare_paper and scene.afterload_type != "water_column":
+            raise ValueError(f"--compare-paper: scene {scene.name} is not the paper's bench")
+        start = time.perf_counter()
+        heads = args.afterload if args.afterload else None
+        n = len(heads) if heads else max(1, len(scene.afterloads))
+        say(
+            f"{scene.name}: {n} afterload(s), "
+            f"{args.bpm if args.bpm is not None else scene.bpm:g} bpm; compiling and "
+            "solving beat by beat to the periodic steady state ..."
+        )
+        result = run(
+            scene,
+            omega=args.omega,
+            shortening=args.shortening,
+            bpm=args.bpm,
+            afterload=heads,
+            beats=args.beats,
+            accuracy=args.accuracy,
+        )
+    except (ValueError, FileNotFoundError) as err:
+        return fail(err)
+    say(f"done in {time.perf_counter() - start:.1f} s")
+    records = summary_records(result)
+    if not args.quiet:
+        paper = _paper_values() if args.compare_paper else None
+        print(
+            f"{result.scene.name} at {result.scene.bpm:g} bpm, Omega {result.scene.omega:g}, "
+            f"C {result.scene.shortening:g}" + ("   (paper: 30 bpm)" if paper is not None else "")
+        )
+        print(_table(records, result.scene, paper))
+        for m in result.members:
+            if not m.ok:
+                print(f"warning: {m.label}: {m.message}", file=sys.stderr)
+    if out_dir is not None:
+        for path in _write_outputs(out_dir, result, records, plot=not args.no_plot):
+            say(f"wrote {path}")
+    return 0 if result.ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
