@@ -19,7 +19,12 @@ _EXPORTS = {
     "Shell": "cardiosoft.geometry",
     "apex_motion": "cardiosoft.geometry",
     "cavity_volume": "cardiosoft.geometry",
+    "PumpSurrogate": "cardiosoft.pump",
+    "load_pump": "cardiosoft.pump",
+    "load_scene": "cardiosoft.scene",
+    "run": "cardiosoft.experiment",
 }
+_RENAMED = {"load_pump": "load"}
 
 __all__ = sorted(_EXPORTS)
 
@@ -27,7 +32,8 @@ __all__ = sorted(_EXPORTS)
 def __getattr__(name):
     if name in _EXPORTS:
         module = importlib.import_module(_EXPORTS[name])
-        value = module if module.__name__.endswith(name) else getattr(module, name)
+        value = (module if module.__name__.endswith(name)
+                 else getattr(module, _RENAMED.get(name, name)))
         globals()[name] = value
         return value
     raise AttributeError(f"module 'cardiosoft' has no attribute {name!r}")
