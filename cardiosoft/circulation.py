@@ -38,7 +38,16 @@ import jax
 import jax.numpy as jnp
 
 from cardiosoft._validate import check_positive, check_range
-from cardiosoft.units import MU_WATER, RHO_WATER, G, ml, mm, mmHg
+from cardiosoft.units import (
+    MU_WATER,
+    RHO_WATER,
+    G,
+    ml_per_mmHg,
+    mm,
+    mmHg,
+    mmHg_s2_per_ml,
+    mmHg_s_per_ml,
+)
 
 __all__ = [
     "AbstractAfterload",
@@ -55,9 +64,9 @@ __all__ = [
     "inlet_pressure",
 ]
 
-_R = mmHg / ml  # 1 mmHg s/ml in Pa s/m^3
-_C = ml / mmHg  # 1 ml/mmHg in m^3/Pa
-_L = mmHg / ml  # 1 mmHg s^2/ml in Pa s^2/m^3
+_R = mmHg_s_per_ml
+_C = ml_per_mmHg
+_L = mmHg_s2_per_ml
 _INF = math.inf
 
 

@@ -22,13 +22,13 @@ from cardiosoft.actuation import CablePull
 from cardiosoft.circuit import CableFriction, PumpCircuit
 from cardiosoft.circulation import AtrialSource, Bench, Tube, Valve, WaterColumn, Windkessel3
 from cardiosoft.metrics import BeatMetrics, beat_metrics
-from cardiosoft.pump import PumpSurrogate, load
+from cardiosoft.pump import Domain, PumpSurrogate, load
 from cardiosoft.scene import Scene, load_scene
 from cardiosoft.solve import periodic_beats, preset
 from cardiosoft.static import column_stiffness, quasi_static_stroke
-from cardiosoft.units import bpm, ml, mmHg
+from cardiosoft.units import RHO_WATER, G, bpm, ml, mmHg
 
-__all__ = ["MemberResult", "RunResult", "build_circuit", "run"]
+__all__ = ["MemberResult", "RunResult", "build_circuit", "configure", "run", "summary_records"]
 
 N_PULL_SAMPLES = 201
 N_REST_SAMPLES = 200
@@ -184,13 +184,18 @@ def _shard(tree):
     )
 
 
-def _overrides(scene: Scene, omega, shortening, bpm_value, afterload, accuracy) -> Scene:
+def configure(
+    scene="bench-dynamic", *, omega=None, shortening=None, bpm=None, afterload=None, accuracy=None
+) -> Scene:
+    """The scene with the user's overrides (user units), validated; see :func:`run`."""
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    bpm_value = bpm
     changes = {}
     if omega is not None:
-        check_range("omega", omega, "", *scene_domain()["omega"])
+        check_range("omega", omega, "", *Domain().omega)
         changes["omega"] = float(omega)
     if shortening is not None:
-        check_range("shortening C", shortening, "", *scene_domain()["shortening"])
+        check_range("shortening C", shortening, "", *Domain().shortening)
         changes["shortening"] = float(shortening)
     if bpm_value is not None:
         check_range("bpm", bpm_value, "bpm", 0.0, 300.0, lo_open=True)
@@ -209,11 +214,6 @@ def _overrides(scene: Scene, omega, shortening, bpm_value, afterload, accuracy) 
             raise ValueError(f"accuracy = {accuracy!r}: allowed fast, default, reference")
         changes["accuracy"] = accuracy
     return scene.replace(**changes) if changes else scene
-
-
-def scene_domain() -> dict:
-    """Allowed design ranges (the surrogate's fitted domain)."""
-    return {"omega": (0.0, 6.0), "shortening": (0.0, 0.65)}
 
 
 def run(
@@ -241,8 +241,9 @@ def run(
 
     **Returns:** a :class:`RunResult`. Bad input raises ``ValueError`` naming the parameter.
     """
-    scene = scene if isinstance(scene, Scene) else load_scene(scene)
-    scene = _overrides(scene, omega, shortening, bpm, afterload, accuracy)
+    scene = configure(
+        scene, omega=omega, shortening=shortening, bpm=bpm, afterload=afterload, accuracy=accuracy
+    )
     if beats is not None:
         check_range("beats", beats, "beats", 1, 500)
     pump = load() if pump is None else pump
@@ -252,7 +253,7 @@ def run(
     static = None
     if scene.afterload_type == "water_column":
         k = (
-            column_stiffness(0.25 * math.pi * scene.column_diameter**2, 998.0, 9.80665)
+            column_stiffness(0.25 * math.pi * scene.column_diameter**2, RHO_WATER, G)
             if scene.has("column_rise")
             else 0.0
         )

@@ -26,7 +26,8 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
-from cardiosoft.units import mm, mmHg
+from cardiosoft.pump import Domain
+from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
 
 __all__ = ["EFFECTS", "SCENE_NAMES", "Scene", "load_scene"]
 
@@ -165,8 +166,9 @@ class _Reader:
             raise ValueError(f"{self._where(key)} is not a known key (value {self.table[key]!r})")
 
 
-_R = mmHg / 1e-6  # mmHg s/ml in Pa s/m^3
-_C = 1e-6 / mmHg  # ml/mmHg in m^3/Pa
+_R = mmHg_s_per_ml
+_C = ml_per_mmHg
+_DOMAIN = Domain()
 
 
 def _parse(source: str, doc: dict) -> Scene:
@@ -175,8 +177,8 @@ def _parse(source: str, doc: dict) -> Scene:
     description = top.text("description")
     static = top.choice("kind", ("static", "dynamic")) == "static"
     design = top.sub("design")
-    omega = design.number("omega", "", 0.0, 6.0)
-    shortening = design.number("shortening", "", 0.0, 0.65)
+    omega = design.number("omega", "", *_DOMAIN.omega)
+    shortening = design.number("shortening", "", *_DOMAIN.shortening)
     design.done()
     act = top.sub("actuation")
     fields = {

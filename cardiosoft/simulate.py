@@ -227,8 +227,8 @@ def main(argv=None) -> int:
 
     jax.config.update("jax_enable_x64", True)
     from cardiosoft._cli import fail, refuse_overwrite
-    from cardiosoft.experiment import run, summary_records
-    from cardiosoft.scene import load_scene
+    from cardiosoft._validate import check_range
+    from cardiosoft.experiment import configure, run, summary_records
 
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     try:
@@ -238,26 +238,27 @@ def main(argv=None) -> int:
                 raise ValueError(f"--out {out_dir} exists and is not a folder")
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
-        scene = load_scene(args.scene)
-        if args.compare_paper and scene.afterload_type != "water_column":
-            raise ValueError(f"--compare-paper: scene {scene.name} is not the paper's bench")
-        start = time.perf_counter()
-        heads = args.afterload if args.afterload else None
-        n = len(heads) if heads else max(1, len(scene.afterloads))
-        say(
-            f"{scene.name}: {n} afterload(s), "
-            f"{args.bpm if args.bpm is not None else scene.bpm:g} bpm; compiling and "
-            "solving beat by beat to the periodic steady state ..."
-        )
-        result = run(
-            scene,
+        scene = configure(
+            args.scene,
             omega=args.omega,
             shortening=args.shortening,
             bpm=args.bpm,
-            afterload=heads,
-            beats=args.beats,
+            afterload=args.afterload,
             accuracy=args.accuracy,
         )
+        if args.beats is not None:
+            check_range("beats", args.beats, "beats", 1, 500)
+        if args.compare_paper and scene.afterload_type != "water_column":
+            raise ValueError(f"--compare-paper: scene {scene.name} is not the paper's bench")
+        what = (
+            "quasi-static pull, one root find per cable position"
+            if scene.static
+            else "compiling, then solving beat by beat to the periodic steady state"
+        )
+        n = max(1, len(scene.afterloads))
+        say(f"{scene.name}: {n} afterload(s), {scene.bpm:g} bpm; {what} ...")
+        start = time.perf_counter()
+        result = run(scene, beats=args.beats)
     except (ValueError, FileNotFoundError) as err:
         return fail(err)
     say(f"done in {time.perf_counter() - start:.1f} s")

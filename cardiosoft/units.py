@@ -31,6 +31,13 @@ bpm = 1.0 / 60.0
 deg = math.pi / 180.0
 """One degree in rad."""
 
+mmHg_s_per_ml = mmHg / ml
+"""Resistance unit: 1 mmHg s/ml in Pa s/m^3."""
+ml_per_mmHg = ml / mmHg
+"""Compliance unit: 1 ml/mmHg in m^3/Pa."""
+mmHg_s2_per_ml = mmHg / ml
+"""Inertance unit: 1 mmHg s^2/ml in Pa s^2/m^3."""
+
 RHO_WATER = 998.0
 """Density of water at about 20 C, kg/m^3."""
 MU_WATER = 1.0e-3
