@@ -23,6 +23,7 @@ _EXPORTS = {
     "load_pump": "cardiosoft.pump",
     "load_scene": "cardiosoft.scene",
     "run": "cardiosoft.experiment",
+    "sweep": "cardiosoft.experiment",
 }
 _RENAMED = {"load_pump": "load"}
 

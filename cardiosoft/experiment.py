@@ -28,7 +28,15 @@ from cardiosoft.solve import periodic_beats, preset
 from cardiosoft.static import column_stiffness, quasi_static_stroke
 from cardiosoft.units import RHO_WATER, G, bpm, ml, mmHg
 
-__all__ = ["MemberResult", "RunResult", "build_circuit", "configure", "run", "summary_records"]
+__all__ = [
+    "MemberResult",
+    "RunResult",
+    "build_circuit",
+    "configure",
+    "run",
+    "summary_records",
+    "sweep",
+]
 
 N_PULL_SAMPLES = 201
 N_REST_SAMPLES = 200
@@ -161,8 +169,10 @@ def _simulate(circuits: PumpCircuit, max_beats: int, tol, config):
 
 
 @eqx.filter_jit
-def _static_strokes(pump: PumpSurrogate, omega, stroke, afterloads, k, friction):
-    out = jax.vmap(lambda p: quasi_static_stroke(pump, omega, stroke, p, k))(afterloads)
+def _static_strokes(pump: PumpSurrogate, omegas, strokes, afterloads, k, friction):
+    out = jax.vmap(lambda o, x, p: quasi_static_stroke(pump, o, x, p, k))(
+        omegas, strokes, afterloads
+    )
     factor = jnp.exp(friction)
     return out.stroke_volume, factor * out.peak_force, factor * out.mechanical_work
 
@@ -244,11 +254,47 @@ def run(
     scene = configure(
         scene, omega=omega, shortening=shortening, bpm=bpm, afterload=afterload, accuracy=accuracy
     )
+    heads = scene.afterloads if scene.afterload_type == "water_column" else (None,)
+    labels = [f"{h / mmHg:g} mmHg" if h is not None else scene.name for h in heads]
+    return _run_members(
+        scene, [(label, scene, h) for label, h in zip(labels, heads, strict=True)], beats, pump
+    )
+
+
+def sweep(
+    scene="bench-dynamic",
+    designs=((4.0, 0.4),),
+    *,
+    bpm=None,
+    afterload=None,
+    beats=None,
+    accuracy=None,
+    pump: PumpSurrogate | None = None,
+) -> RunResult:
+    """Simulate several designs (Omega, C) at every afterload of a scene in one compiled call.
+
+    ``designs`` is a sequence of ``(omega, shortening)`` pairs; the other arguments are those
+    of :func:`run`. Members are labelled ``"Omega 4, C 0.4, 30 mmHg"``. Keep the designs of one
+    sweep alike: the batch runs until its slowest member reaches steady state.
+    """
+    scene = configure(scene, bpm=bpm, afterload=afterload, accuracy=accuracy)
+    heads = scene.afterloads if scene.afterload_type == "water_column" else (None,)
+    variants = []
+    for omega, shortening in designs:
+        design = configure(scene, omega=omega, shortening=shortening)
+        for h in heads:
+            where = f", {h / mmHg:g} mmHg" if h is not None else ""
+            variants.append((f"Omega {omega:g}, C {shortening:g}{where}", design, h))
+    return _run_members(scene, variants, beats, pump)
+
+
+def _run_members(scene: Scene, variants, beats, pump) -> RunResult:
+    """Solve every (label, scene variant, afterload) in one vmapped call."""
     if beats is not None:
         check_range("beats", beats, "beats", 1, 500)
     pump = load() if pump is None else pump
-    heads = scene.afterloads if scene.afterload_type == "water_column" else (None,)
-    labels = [f"{h / mmHg:g} mmHg" if h is not None else scene.name for h in heads]
+    labels = [label for label, _, _ in variants]
+    heads = [h for _, _, h in variants]
 
     static = None
     if scene.afterload_type == "water_column":
@@ -258,10 +304,11 @@ def run(
             else 0.0
         )
         friction = scene.cable_friction if scene.has("cable_friction") else 0.0
-        stroke = scene.shortening * pump.cable_length(scene.omega)
+        omegas = jnp.asarray([v.omega for _, v, _ in variants])
+        strokes = jnp.asarray([v.shortening for _, v, _ in variants]) * pump.cable_length(omegas)
         static = [
             np.asarray(a)
-            for a in _static_strokes(pump, scene.omega, stroke, jnp.asarray(heads), k, friction)
+            for a in _static_strokes(pump, omegas, strokes, jnp.asarray(heads), k, friction)
         ]
 
     if scene.static:
@@ -273,13 +320,14 @@ def run(
         )
         return RunResult(scene, members)
 
-    circuits = _shard(_stack([_circuit(scene, pump, h) for h in heads]))
+    circuits = _shard(_stack([_circuit(v, pump, h) for _, v, h in variants]))
     config = preset(scene.accuracy, stiff=scene.has("valves"))
     max_beats, tol = (beats, 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
     out, signals, metrics = _simulate(circuits, int(max_beats), tol, config)
+    codes = np.asarray(out.result._value)
     members = []
     for i, (label, h) in enumerate(zip(labels, heads, strict=True)):
-        code = int(np.asarray(out.result._value)[i])
+        code = int(codes[i])
         ok = code == int(diffrax.RESULTS.successful._value)
         m = {f.name: float(getattr(metrics, f.name)[i]) for f in dataclasses.fields(BeatMetrics)}
         if static is not None:
@@ -287,19 +335,18 @@ def run(
         n_beats = int(out.beats[i])
         residual = float(out.residual[i])
         converged = beats is not None or residual <= scene.steady_tol
-        message = (
-            "ok"
-            if ok and converged
-            else (
-                f"solver failed in beat {n_beats}: {_result_message(code)}"
-                if not ok
-                else f"not steady after {n_beats} beats (cycle change {residual:.3g} > "
+        if not ok:
+            message = f"solver failed in beat {n_beats}: {_result_message(code)}"
+        elif not converged:
+            message = (
+                f"not steady after {n_beats} beats (cycle change {residual:.3g} > "
                 f"{scene.steady_tol:g})"
             )
-        )
+        else:
+            message = "ok"
         traces = {"time": np.asarray(out.ts[i]), "volume": np.asarray(out.ys["volume"][i])}
         traces |= {k: np.asarray(v[i]) for k, v in signals.items()}
-        if "afterload" in out.ys and "column_volume" in out.ys["afterload"]:
+        if "column_volume" in out.ys["afterload"]:
             traces["column_volume"] = np.asarray(out.ys["afterload"]["column_volume"][i])
         members.append(
             MemberResult(
