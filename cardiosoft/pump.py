@@ -135,7 +135,11 @@ class PumpSurrogate(eqx.Module):
         twist = omega * shortening
         step = jax.nn.sigmoid((twist - tau) / width) - jax.nn.sigmoid(-tau / width)
         depth = _softplus(self.fold_depth[0]) + _softplus(self.fold_depth[1]) * shortening
-        three = self.three_fold_probability(omega, shortening) * _softplus(self.three_fold_depth)
+        # normalised like the buckling step, so that EF_0 is exactly 0 at C = 0 for every Omega
+        three = (
+            self.three_fold_probability(omega, shortening)
+            - self.three_fold_probability(omega, jnp.zeros_like(shortening))
+        ) * _softplus(self.three_fold_depth)
         h = a * shortening + b * shortening**2 + step * depth + three
         return -jnp.expm1(-h)
 

@@ -1,0 +1,255 @@
+"""The fit (fit/): the shipped artifact against its own card, the data it was fitted on, the
+held-out Table II, the command line, and (slow) a refit from scratch.
+"""
+
+import dataclasses
+import json
+import math
+import os
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import numpy as np
+import pytest
+
+from cardiosoft import datasets
+from cardiosoft.pump import load, load_card
+from fit import fitting, pipeline, report  # the repository root is on pytest's pythonpath
+
+REPO = Path(__file__).resolve().parent.parent
+
+HEADLINE = (
+    "table1_mae_ml",
+    "table2_mae_ml",
+    "table1_loo_mae_ml",
+    "static_sv_ml",
+    "peak_force_N",
+    "mech_work_J",
+)
+
+
+@pytest.fixture(scope="module")
+def data():
+    return datasets.load_paper_data()
+
+
+@pytest.fixture(scope="module")
+def card():
+    return load_card()
+
+
+@pytest.fixture(scope="module")
+def report_proc():
+    """``python -m fit --report``, started by the first test so that it runs beside the others."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fit", "--report"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    yield proc
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.fixture(scope="module")
+def report_run(report_proc):
+    out, err = report_proc.communicate(timeout=300)
+    return types.SimpleNamespace(returncode=report_proc.returncode, stdout=out, stderr=err)
+
+
+def _assert_same(actual, expected, key, rel):
+    if isinstance(expected, list):
+        assert isinstance(actual, list) and len(actual) == len(expected), key
+        for a, e in zip(actual, expected, strict=True):
+            _assert_same(a, e, key, rel)
+    elif isinstance(expected, float):
+        assert actual == pytest.approx(expected, rel=rel, abs=rel), key
+    else:
+        assert actual == expected, key
+
+
+# ------------------------------------------------------------------- the artifact and its card
+def test_artifact_reproduces_its_card(data, card, report_proc, monkeypatch):
+    # the same functions compiled whole instead of op by op (saves ~10 s; `python -m fit
+    # --report` below runs them eagerly)
+    for name in ("bench_prediction", "fem_prediction"):
+        monkeypatch.setattr(pipeline, name, jax.jit(getattr(pipeline, name)))
+    m = report.metrics(load(), fitting.rig_from_card(card), data)
+    shared = sorted(set(m) & set(card["metrics"]))
+    assert len(shared) >= 20
+    assert set(card["metrics"]) - set(m) == {"table1_loo_mae_ml"}  # needs 25 refits
+    for key in shared:
+        _assert_same(m[key], card["metrics"][key], key, 1e-6)
+
+
+def test_card_metrics_are_consistent_with_the_tables(data, card):
+    """Recompute the error summaries from the card's per-cell values and the CSV files."""
+    m = card["metrics"]
+    a, b, h = 60.0, 30.0, 50.0  # mm: the cavity below the apex plane, pi B^2 (h - h^3 / 3A^2)
+    vu_ml = np.pi * b**2 * (h - h**3 / (3 * a**2)) / 1e3
+    for table, prefix in ((data.table1_fem, "table1"), (data.table2_experiment, "table2")):
+        model_ef = np.asarray(m[f"{prefix}_ef_model_percent"])
+        err = (model_ef - np.asarray(table["ef_percent"])) / 100 * vu_ml
+        np.testing.assert_allclose(m[f"{prefix}_error_ml"], err, rtol=2e-3, atol=2e-3)
+        assert m[f"{prefix}_mae_ml"] == pytest.approx(np.mean(np.abs(err)), rel=2e-3)
+        np.testing.assert_array_equal(m[f"{prefix}_folds_model"], table["folds"])
+    assert m["folds_wrong"] == 0
+    assert m["table2_paper_reported_error_mean_ml"] == pytest.approx(
+        float(np.mean(data.table2_experiment["error_ml"])), rel=1e-12
+    )
+
+
+def test_rig_round_trips_through_the_card(card):
+    rig = fitting.rig_from_card(card)
+    assert float(rig.column_diameter) * 1e3 == pytest.approx(card["rig"]["column_diameter_mm"],
+                                                             rel=1e-12)
+    assert float(rig.cable_friction) == pytest.approx(card["rig"]["cable_friction_exponent"],
+                                                      rel=1e-12)
+    assert float(rig.fem_pressure) / 133.322387415 == pytest.approx(
+        card["rig"]["fem_pressure_mmHg"], rel=1e-12
+    )
+
+
+def test_card_records_the_data_it_was_fitted_on(card):
+    data_dir = REPO / "fit" / "data"
+    csvs = sorted(p.name for p in data_dir.glob("*.csv"))
+    assert sorted(card["data_sha256"]) == csvs
+    for name, digest in card["data_sha256"].items():
+        assert datasets.sha256(data_dir / name) == digest, name
+    # and the weights next to it are the ones the card names
+    weights = REPO / "surrogates" / card["weights_file"]
+    assert datasets.sha256(weights) == card["weights_sha256"]
+    assert card["held_out"] == ["table2_experiment.csv"]
+    assert card["format_version"] == 1
+
+
+class _Untouchable:
+    """Stands in for Table II: any use of it fails the test."""
+
+    def __getattr__(self, name):
+        raise AssertionError(f"Table II was read (attribute {name!r})")
+
+    def __getitem__(self, name):
+        raise AssertionError(f"Table II was read (column {name!r})")
+
+    def __len__(self):
+        raise AssertionError("Table II was read (len)")
+
+    def __iter__(self):
+        raise AssertionError("Table II was read (iter)")
+
+
+def test_targets_never_read_table_two(data):
+    blind = dataclasses.replace(data, table2_experiment=_Untouchable())
+    t_blind, t = pipeline.targets(blind), pipeline.targets(data)
+    for a, b in zip(t_blind, t, strict=True):
+        np.testing.assert_array_equal(a, b)
+    # no Table II number appears among the targets (EF in percent -> fraction)
+    table2_ef = set(np.round(np.asarray(data.table2_experiment["ef_percent"]) / 100, 6))
+    table1_ef = set(np.round(t.t1_ef, 6))
+    for value in np.round(np.concatenate([np.ravel(np.asarray(v, float)) for v in t]), 6):
+        assert value not in table2_ef - table1_ef
+
+
+def test_three_fold_boundary_from_table_one(data):
+    assert fitting.three_fold_boundary(data.table1_fem) == pytest.approx((1.5, 0.35), abs=1e-12)
+    # the recorded boundary of the shipped model is the same
+    np.testing.assert_allclose(np.asarray(load().three_fold_boundary), [1.5, 0.35], atol=1e-12)
+
+
+def test_three_fold_boundary_separates_the_classes(data):
+    t1 = data.table1_fem
+    o, c, f = (np.asarray(t1[k], float) for k in ("omega", "shortening", "folds"))
+    omega_c, c_c = fitting.three_fold_boundary(t1)
+    np.testing.assert_array_equal((o < omega_c) & (c > c_c), f == 3)
+
+
+# ------------------------------------------------------------------------------ command line
+def test_report_cli_verdicts_and_exit_code(report_run, card):
+    m = dict(card["metrics"])  # the report recomputes all but the LOO value, which it reads
+    verdicts = report.verdicts(m)
+    assert len(verdicts) == len(report.TARGETS)
+    expected_rc = 0 if all(verdicts.values()) else 1
+    assert report_run.returncode == expected_rc, report_run.stderr[-2000:]
+    out = report_run.stdout
+    assert "HELD OUT" in out
+    assert f"mean |error|: model {m['table2_mae_ml']:.2f} ml" in out
+    # one [met]/[NOT MET] line per target, agreeing with the verdicts
+    for key, (label, *_rest) in report.TARGETS.items():
+        line = next(s for s in out.splitlines() if label in s and s.strip().startswith("["))
+        assert line.strip().startswith("[met]" if verdicts[key] else "[NOT MET]"), line
+
+
+def test_out_refuses_to_overwrite(tmp_path):
+    out = tmp_path / "artifact.eqx"
+    out.write_bytes(b"precious")
+    before = out.stat()
+    proc = subprocess.run(
+        [sys.executable, "-m", "fit", "--out", str(tmp_path / "artifact")],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("error:") and "--force" in lines[0] and str(out) in lines[0]
+    assert out.read_bytes() == b"precious"
+    assert out.stat().st_mtime_ns == before.st_mtime_ns
+    assert not (tmp_path / "artifact.json").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["artifact.eqx"]
+
+
+# ------------------------------------------------------------------------------------- refit
+def _corrupted_table2(data):
+    t2 = data.table2_experiment
+    cols = dict(t2.columns)
+    cols["ef_percent"] = np.asarray(cols["ef_percent"]) * 0.5 + 7.0
+    cols["error_ml"] = np.asarray(cols["error_ml"]) + 10.0
+    cols["folds"] = 7 - np.asarray(cols["folds"])
+    return dataclasses.replace(t2, columns=cols)
+
+
+@pytest.fixture(scope="module")
+def refit(data):
+    return fitting.fit(data, progress=lambda _msg: None)
+
+
+@pytest.fixture(scope="module")
+def refit_blind(data):
+    blind = dataclasses.replace(data, table2_experiment=_corrupted_table2(data))
+    return fitting.fit(blind, progress=lambda _msg: None)
+
+
+@pytest.mark.slow
+def test_refit_reproduces_the_shipped_card(refit, card):
+    model, _rig, new_card = refit
+    for key in HEADLINE:
+        _assert_same(new_card["metrics"][key], card["metrics"][key], key, 1e-3)
+    for key in ("column_diameter_mm", "cable_friction_exponent", "fem_pressure_mmHg"):
+        assert new_card["rig"][key] == pytest.approx(card["rig"][key], rel=1e-3), key
+    assert new_card["data_sha256"] == card["data_sha256"]
+    assert new_card["held_out"] == card["held_out"]
+    # the refit model is the shipped one (same data, deterministic fit)
+    shipped = load()
+    for a, b in zip(jax.tree_util.tree_leaves(eqx.filter(model, eqx.is_array)),
+                    jax.tree_util.tree_leaves(eqx.filter(shipped, eqx.is_array)), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-3, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_refit_ignores_table_two(refit, refit_blind, data):
+    model, rig, _ = refit
+    model_b, rig_b, card_b = refit_blind
+    # the fitted pump and rig do not depend on Table II at all
+    assert bool(eqx.tree_equal(model, model_b))
+    assert bool(eqx.tree_equal(rig, rig_b))
+    # ... while the metrics of the corrupted run did see the corrupted table
+    m = report.metrics(model_b, rig_b, data)
+    assert card_b["metrics"]["table2_mae_ml"] != pytest.approx(m["table2_mae_ml"])
+    assert card_b["metrics"]["table1_mae_ml"] == m["table1_mae_ml"]
+    assert math.isfinite(card_b["metrics"]["table1_loo_mae_ml"])
+    json.dumps(card_b)  # the card is JSON-ready
