@@ -89,73 +89,243 @@ class Scene:
         return _validated(dataclasses.replace(self, **changes))
 
 
+_R = mmHg_s_per_ml
+_C = ml_per_mmHg
+_DOMAIN = Domain()
+
+
+@dataclasses.dataclass(frozen=True)
+class _Number:
+    """One numeric key: where it lives in the file, its unit, its range, its Scene field."""
+
+    field: str
+    key: str  # "section.key" in the file
+    unit: str
+    lo: float
+    hi: float
+    lo_open: bool = False
+    scale: float = 1.0  # SI value of one user unit
+    default: float | None = None
+    index: int | None = None  # position in a tuple field
+    when: str = "always"  # "always", an afterload type, or "effect:NAME"
+
+    def allowed(self) -> str:
+        right = ")" if self.hi == math.inf else "]"
+        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{right} {self.unit}".rstrip()
+
+
+# Every numeric key of a scene file, with its allowed range: the one place ranges are written.
+# Parsing converts units with it; _validated checks files and Scene.replace() alike with it.
+_NUMBERS = (
+    _Number("omega", "design.omega", "", *_DOMAIN.omega),
+    _Number("shortening", "design.shortening", "", *_DOMAIN.shortening),
+    _Number("bpm", "actuation.bpm", "bpm", 0.0, 300.0, lo_open=True),
+    _Number("pull_fraction", "actuation.pull_fraction", "", 0.0, 1.0, True, default=0.5),
+    _Number("hold_fraction", "actuation.hold_fraction", "", 0.0, 1.0, default=0.0),
+    _Number("release_fraction", "actuation.release_fraction", "", 0.0, 1.0, True, default=0.5),
+    _Number(
+        "afterloads",
+        "afterload.pressures_mmHg",
+        "mmHg",
+        0.0,
+        150.0,
+        scale=mmHg,
+        when="water_column",
+    ),
+    _Number(
+        "column_diameter",
+        "afterload.column_diameter_mm",
+        "mm",
+        1.0,
+        500.0,
+        scale=mm,
+        when="water_column",
+    ),
+    _Number(
+        "tube_length", "afterload.tube_length_mm", "mm", 1.0, 1e4, scale=mm, when="water_column"
+    ),
+    _Number(
+        "tube_diameter",
+        "afterload.tube_diameter_mm",
+        "mm",
+        1.0,
+        100.0,
+        scale=mm,
+        when="water_column",
+    ),
+    _Number(
+        "loss_coefficient",
+        "afterload.loss_coefficient",
+        "",
+        0.0,
+        100.0,
+        default=1.0,
+        when="water_column",
+    ),
+    _Number(
+        "windkessel",
+        "afterload.Rp_mmHg_s_per_ml",
+        "mmHg s/ml",
+        0.0,
+        10.0,
+        True,
+        _R,
+        index=0,
+        when="windkessel3",
+    ),
+    _Number(
+        "windkessel",
+        "afterload.C_ml_per_mmHg",
+        "ml/mmHg",
+        0.0,
+        100.0,
+        True,
+        _C,
+        index=1,
+        when="windkessel3",
+    ),
+    _Number(
+        "windkessel",
+        "afterload.Rd_mmHg_s_per_ml",
+        "mmHg s/ml",
+        0.0,
+        10.0,
+        True,
+        _R,
+        index=2,
+        when="windkessel3",
+    ),
+    _Number(
+        "venous_pressure",
+        "afterload.venous_pressure_mmHg",
+        "mmHg",
+        0.0,
+        50.0,
+        scale=mmHg,
+        default=0.0,
+        when="windkessel3",
+    ),
+    _Number(
+        "preload_pressure",
+        "preload.pressure_mmHg",
+        "mmHg",
+        0.0,
+        50.0,
+        scale=mmHg,
+        when="effect:preload",
+    ),
+    _Number(
+        "valve_smoothing",
+        "valves.smoothing_mmHg",
+        "mmHg",
+        0.0,
+        10.0,
+        True,
+        mmHg,
+        default=0.5,
+        when="effect:valves",
+    ),
+    _Number(
+        "valve_resistance",
+        "valves.inlet_resistance_mmHg_s_per_ml",
+        "mmHg s/ml",
+        0.0,
+        10.0,
+        True,
+        _R,
+        index=0,
+        when="effect:valves",
+    ),
+    _Number(
+        "valve_resistance",
+        "valves.outlet_resistance_mmHg_s_per_ml",
+        "mmHg s/ml",
+        0.0,
+        10.0,
+        True,
+        _R,
+        index=1,
+        when="effect:valves",
+    ),
+    _Number(
+        "cable_friction", "cable_friction.exponent", "", 0.0, 3.0, when="effect:cable_friction"
+    ),
+    _Number("max_beats", "solve.max_beats", "beats", 1.0, 500.0, default=30),
+    _Number("steady_tol", "solve.steady_tol", "ml or mmHg", 0.0, 10.0, default=0.01),
+)
+# Text keys: (field, "section.key", allowed values, default, when).
+_CHOICES = (
+    ("shape", "actuation.shape", SHAPES, "linear", "always"),
+    ("accuracy", "solve.accuracy", ACCURACY, "default", "always"),
+    ("valve_kind", "valves.kind", VALVE_KINDS, "smooth", "effect:valves"),
+)
+_SECTIONS = {  # table -> when it must be present
+    "design": "always",
+    "actuation": "always",
+    "afterload": "always",
+    "preload": "effect:preload",
+    "valves": "effect:valves",
+    "cable_friction": "effect:cable_friction",
+    "solve": "optional",
+}
+
+
+def _applies(when: str, afterload_type: str, effects) -> bool:
+    if when in ("always", "optional"):
+        return True
+    if when.startswith("effect:"):
+        return when.removeprefix("effect:") in effects
+    return when == afterload_type
+
+
 class _Reader:
-    """Reads one table of a scene file, consuming keys and naming file/key in errors."""
+    """Reads one table of a scene file, consuming keys and naming file and key in errors."""
 
     def __init__(self, source: str, table: dict, prefix: str = ""):
         self.source, self.table, self.prefix = source, dict(table), prefix
+        self.known: list[str] = []  # keys asked for, listed when an unknown key is found
 
     def _where(self, key):
         return f"{self.source}: key '{self.prefix}{key}'"
 
-    def sub(self, key, required=True) -> _Reader | None:
-        value = self.table.pop(key, None)
+    def pop(self, key, default=None):
+        self.known.append(key)
+        return self.table.pop(key, default)
+
+    def sub(self, key, required: bool) -> _Reader | None:
+        value = self.pop(key)
         if value is None:
             if required:
-                raise ValueError(f"{self._where(key)} is missing (a table)")
+                raise ValueError(f"{self._where(key)} is missing (a table [{key}])")
             return None
         if not isinstance(value, dict):
             raise ValueError(f"{self._where(key)} = {value!r} must be a table [{key}]")
         return _Reader(self.source, value, f"{self.prefix}{key}.")
 
-    def number(
-        self,
-        key,
-        unit,
-        lo=-math.inf,
-        hi=math.inf,
-        *,
-        default=None,
-        lo_open=False,
-        hi_open=False,
-        scale=1.0,
-    ):
-        value = self.table.pop(key, default)
-        allowed = (
-            f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open or hi == math.inf else ']'}"
-            f" {unit}"
-        ).rstrip()
+    def number(self, spec: _Number, key: str):
+        """The value(s) in SI; ranges are checked later, by :func:`_validated`."""
+        value = self.pop(key, spec.default)
+        what = "a list of numbers" if spec.field == "afterloads" else "a number"
         if value is None:
-            raise ValueError(f"{self._where(key)} is missing; allowed: a number in {allowed}")
-        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-        if ok:
-            ok = (value > lo if lo_open else value >= lo) and (
-                value < hi if hi_open else value <= hi
-            )
-        if not ok:
-            raise ValueError(f"{self._where(key)} = {value!r} {unit}: allowed {allowed}")
-        return float(value) * scale
+            raise ValueError(f"{self._where(key)} is missing; allowed: {what} in {spec.allowed()}")
+        values = value if spec.field == "afterloads" and isinstance(value, list) else [value]
+        if (
+            (spec.field == "afterloads" and not isinstance(value, list))
+            or not values
+            or any(isinstance(v, bool) or not isinstance(v, int | float) for v in values)
+        ):
+            raise ValueError(f"{self._where(key)} = {value!r}: allowed {what} in {spec.allowed()}")
+        converted = tuple(float(v) * spec.scale for v in values)
+        return converted if spec.field == "afterloads" else converted[0]
 
-    def numbers(self, key, unit, lo, hi, *, scale=1.0):
-        values = self.table.pop(key, None)
-        if not isinstance(values, list) or not values:
-            raise ValueError(
-                f"{self._where(key)} = {values!r}: allowed a non-empty list of "
-                f"numbers in [{lo:g}, {hi:g}] {unit}"
-            )
-        reader = _Reader(self.source, {f"{key}[{i}]": v for i, v in enumerate(values)}, self.prefix)
-        return tuple(
-            reader.number(f"{key}[{i}]", unit, lo, hi, scale=scale) for i in range(len(values))
-        )
-
-    def choice(self, key, choices, *, default=None):
-        value = self.table.pop(key, default)
+    def choice(self, key, choices, default=None):
+        value = self.pop(key, default)
         if value not in choices:
             raise ValueError(f"{self._where(key)} = {value!r}: allowed {', '.join(choices)}")
         return value
 
     def text(self, key, default=""):
-        value = self.table.pop(key, default)
+        value = self.pop(key, default)
         if not isinstance(value, str):
             raise ValueError(f"{self._where(key)} = {value!r}: allowed a string")
         return value
@@ -163,12 +333,11 @@ class _Reader:
     def done(self):
         if self.table:
             key = sorted(self.table)[0]
-            raise ValueError(f"{self._where(key)} is not a known key (value {self.table[key]!r})")
-
-
-_R = mmHg_s_per_ml
-_C = ml_per_mmHg
-_DOMAIN = Domain()
+            allowed = ", ".join(sorted(set(self.known))) or "none"
+            raise ValueError(
+                f"{self._where(key)} is not a known key (value {self.table[key]!r}); "
+                f"allowed keys here: {allowed}"
+            )
 
 
 def _parse(source: str, doc: dict) -> Scene:
@@ -176,22 +345,11 @@ def _parse(source: str, doc: dict) -> Scene:
     name = top.text("name")
     description = top.text("description")
     static = top.choice("kind", ("static", "dynamic")) == "static"
-    design = top.sub("design")
-    omega = design.number("omega", "", *_DOMAIN.omega)
-    shortening = design.number("shortening", "", *_DOMAIN.shortening)
-    design.done()
-    act = top.sub("actuation")
-    fields = {
-        "bpm": act.number("bpm", "bpm", 0.0, 300.0, lo_open=True),
-        "shape": act.choice("shape", SHAPES, default="linear"),
-        "pull_fraction": act.number("pull_fraction", "", 0.0, 1.0, default=0.5, lo_open=True),
-        "hold_fraction": act.number("hold_fraction", "", 0.0, 1.0, default=0.0),
-        "release_fraction": act.number("release_fraction", "", 0.0, 1.0, default=0.5, lo_open=True),
-    }
-    act.done()
-    after = top.sub("afterload")
-    kind = after.choice("type", tuple(EFFECTS))
-    raw_effects = top.table.pop("effects", [])
+    # the afterload's type decides which tables and keys are required: read it first
+    afterload_table = doc.get("afterload")
+    afterload_table = afterload_table if isinstance(afterload_table, dict) else {}
+    kind = _Reader(source, afterload_table, "afterload.").choice("type", tuple(EFFECTS))
+    raw_effects = top.pop("effects", [])
     if not isinstance(raw_effects, list) or any(e not in EFFECTS[kind] for e in raw_effects):
         bad = (
             raw_effects
@@ -203,58 +361,32 @@ def _parse(source: str, doc: dict) -> Scene:
             f"{', '.join(EFFECTS[kind])}"
         )
     effects = tuple(dict.fromkeys(raw_effects))
-    if kind == "water_column":
-        fields |= {
-            "afterloads": after.numbers("pressures_mmHg", "mmHg", 0.0, 150.0, scale=mmHg),
-            "column_diameter": after.number("column_diameter_mm", "mm", 1.0, 500.0, scale=mm),
-            "tube_length": after.number("tube_length_mm", "mm", 1.0, 1e4, scale=mm),
-            "tube_diameter": after.number("tube_diameter_mm", "mm", 1.0, 100.0, scale=mm),
-            "loss_coefficient": after.number("loss_coefficient", "", 0.0, 100.0, default=1.0),
-        }
-    else:
-        fields |= {
-            "afterloads": (),
-            "windkessel": (
-                after.number("Rp_mmHg_s_per_ml", "mmHg s/ml", 0.0, 10.0, lo_open=True, scale=_R),
-                after.number("C_ml_per_mmHg", "ml/mmHg", 0.0, 100.0, lo_open=True, scale=_C),
-                after.number("Rd_mmHg_s_per_ml", "mmHg s/ml", 0.0, 10.0, lo_open=True, scale=_R),
-            ),
-            "venous_pressure": after.number(
-                "venous_pressure_mmHg", "mmHg", 0.0, 50.0, default=0.0, scale=mmHg
-            ),
-        }
-    after.done()
-    preload = top.sub("preload", required="preload" in effects)
-    if preload is not None:
-        fields["preload_pressure"] = preload.number("pressure_mmHg", "mmHg", 0.0, 50.0, scale=mmHg)
-        preload.done()
-    valves = top.sub("valves", required="valves" in effects)
-    if valves is not None:
-        fields["valve_kind"] = valves.choice("kind", VALVE_KINDS, default="smooth")
-        fields["valve_smoothing"] = valves.number(
-            "smoothing_mmHg", "mmHg", 0.0, 10.0, default=0.5, lo_open=True, scale=mmHg
-        )
-        fields["valve_resistance"] = (
-            valves.number(
-                "inlet_resistance_mmHg_s_per_ml", "mmHg s/ml", 0.0, 10.0, lo_open=True, scale=_R
-            ),
-            valves.number(
-                "outlet_resistance_mmHg_s_per_ml", "mmHg s/ml", 0.0, 10.0, lo_open=True, scale=_R
-            ),
-        )
-        valves.done()
-    friction = top.sub("cable_friction", required="cable_friction" in effects)
-    if friction is not None:
-        fields["cable_friction"] = friction.number("exponent", "", 0.0, 3.0)
-        friction.done()
-    solve = top.sub("solve", required=False) or _Reader(source, {}, "solve.")
-    fields |= {
-        "accuracy": solve.choice("accuracy", ACCURACY, default="default"),
-        "max_beats": int(solve.number("max_beats", "beats", 1, 500, default=30)),
-        "steady_tol": solve.number("steady_tol", "ml or mmHg", 0.0, 10.0, default=0.01),
+    readers = {
+        section: top.sub(section, required=when != "optional" and _applies(when, kind, effects))
+        or _Reader(source, {}, f"{section}.")
+        for section, when in _SECTIONS.items()
     }
-    solve.done()
+    readers["afterload"].pop("type")
+    fields: dict = {}
+    for spec in _NUMBERS:
+        if _applies(spec.when, kind, effects):
+            section, key = spec.key.split(".", 1)
+            value = readers[section].number(spec, key)
+            if spec.index is None:
+                fields[spec.field] = value
+            else:
+                fields.setdefault(spec.field, [math.nan] * 3)[spec.index] = value
+    for field, where, choices, default, when in _CHOICES:
+        if _applies(when, kind, effects):
+            section, key = where.split(".", 1)
+            fields[field] = readers[section].choice(key, choices, default)
+    for reader in readers.values():
+        reader.done()
     top.done()
+    fields.setdefault("afterloads", ())
+    fields["windkessel"] = tuple(fields.get("windkessel", (math.nan,) * 3))
+    fields["valve_resistance"] = tuple(fields.get("valve_resistance", (math.nan,) * 2)[:2])
+    fields["max_beats"] = int(fields["max_beats"])
     return _validated(
         Scene(
             name=name,
@@ -262,8 +394,6 @@ def _parse(source: str, doc: dict) -> Scene:
             description=description,
             static=static,
             effects=effects,
-            omega=omega,
-            shortening=shortening,
             afterload_type=kind,
             **fields,
         )
@@ -271,7 +401,51 @@ def _parse(source: str, doc: dict) -> Scene:
 
 
 def _validated(scene: Scene) -> Scene:
+    """Check every value of ``scene`` against :data:`_NUMBERS` and the structural rules."""
     where = f"{scene.source}:"
+    if scene.afterload_type not in EFFECTS:
+        raise ValueError(
+            f"{where} key 'afterload.type' = {scene.afterload_type!r}: allowed {', '.join(EFFECTS)}"
+        )
+    bad = [e for e in scene.effects if e not in EFFECTS[scene.afterload_type]]
+    if bad:
+        raise ValueError(
+            f"{where} key 'effects' = {bad!r}: allowed for a "
+            f"{scene.afterload_type} afterload: "
+            f"{', '.join(EFFECTS[scene.afterload_type])}"
+        )
+    for spec in _NUMBERS:
+        if not _applies(spec.when, scene.afterload_type, scene.effects):
+            continue
+        value = getattr(scene, spec.field)
+        value = value[spec.index] if spec.index is not None else value
+        listed = isinstance(value, tuple)
+        for i, v in enumerate(value if listed else (value,)):
+            u = v / spec.scale
+            inside = (
+                math.isfinite(u)
+                and (u > spec.lo if spec.lo_open else u >= spec.lo)
+                and u <= spec.hi
+            )
+            if not inside:
+                key = f"{spec.key}[{i}]" if listed else spec.key
+                raise ValueError(
+                    f"{where} key '{key}' = {u:g} {spec.unit}".rstrip()
+                    + f": allowed {spec.allowed()}"
+                )
+    if scene.afterload_type == "water_column" and not scene.afterloads:
+        raise ValueError(
+            f"{where} key 'afterload.pressures_mmHg' is empty: allowed a non-empty "
+            "list of numbers in [0, 150] mmHg"
+        )
+    for field, key, choices, _, when in _CHOICES:
+        if (
+            _applies(when, scene.afterload_type, scene.effects)
+            and getattr(scene, field) not in choices
+        ):
+            raise ValueError(
+                f"{where} key '{key}' = {getattr(scene, field)!r}: allowed {', '.join(choices)}"
+            )
     total = scene.pull_fraction + scene.hold_fraction + scene.release_fraction
     if total > 1 + 1e-12:
         raise ValueError(

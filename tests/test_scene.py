@@ -1,0 +1,410 @@
+"""Scenes: loading and validation of the TOML files, opt-in effects, and the static scene.
+
+Bad files are written to ``tmp_path`` from the shipped ``bench-dynamic.toml`` with one line
+changed; every message must name the file, the key, the value and what is allowed. Effects are
+checked structurally (state keys, the traced vector field) and numerically (a negligible effect
+switched off agrees with it switched on).
+"""
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import jax
+import jax.extend as jex
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cardiosoft import experiment
+from cardiosoft.experiment import build_circuit, run
+from cardiosoft.pump import load, load_card
+from cardiosoft.scene import EFFECTS, SCENE_NAMES, Scene, load_scene
+from cardiosoft.static import quasi_static_stroke
+from cardiosoft.units import mm, mmHg
+
+SCENE_DIR = Path(str(resources.files("cardiosoft") / "scenes"))
+BENCH_TEXT = (SCENE_DIR / "bench-dynamic.toml").read_text()
+ALL_BENCH = (
+    "column_rise",
+    "column_inertia",
+    "tube_inertia",
+    "tube_resistance",
+    "minor_loss",
+    "cable_friction",
+)
+# water at about 20 C and standard gravity, as in tests/README.md (not the library's constants)
+RHO, GRAVITY = 998.0, 9.80665
+
+
+def bad_scene(tmp_path, old, new):
+    """bench-dynamic.toml with the line ``old`` replaced by ``new``, written to tmp_path."""
+    assert BENCH_TEXT.count(old) == 1, old
+    path = tmp_path / "bad-scene.toml"
+    path.write_text(BENCH_TEXT.replace(old, new))
+    return path
+
+
+# ---------------------------------------------------------------------------- shipped scenes
+
+
+def test_scene_names_are_exactly_the_shipped_files():
+    assert sorted(SCENE_NAMES) == sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in SCENE_DIR.glob("*.toml")))
+def test_every_shipped_scene_loads_by_name_and_by_path(name):
+    scene = load_scene(name)
+    assert isinstance(scene, Scene)
+    assert scene.name == name
+    assert set(scene.effects) <= set(EFFECTS[scene.afterload_type])
+    assert 0 < scene.bpm <= 300
+    by_path = load_scene(SCENE_DIR / f"{name}.toml")
+    assert by_path.source == str(SCENE_DIR / f"{name}.toml")
+    assert by_path.replace(source=name) == scene
+
+
+def test_bench_scene_units_are_converted_to_si():
+    raw = tomllib.loads(BENCH_TEXT)["afterload"]
+    scene = load_scene("bench-dynamic")
+    pressures = [p * 133.322387415 for p in raw["pressures_mmHg"]]
+    assert scene.afterloads == pytest.approx(pressures, rel=1e-12)
+    assert scene.column_diameter == pytest.approx(raw["column_diameter_mm"] * 1e-3, rel=1e-12)
+    assert scene.tube_length == pytest.approx(raw["tube_length_mm"] * 1e-3, rel=1e-12)
+    assert scene.tube_diameter == pytest.approx(raw["tube_diameter_mm"] * 1e-3, rel=1e-12)
+
+
+def test_windkessel_scene_units_are_converted_to_si():
+    raw = tomllib.loads((SCENE_DIR / "lv-systemic.toml").read_text())
+    scene = load_scene("lv-systemic")
+    resistance, compliance = 133.322387415 / 1e-6, 1e-6 / 133.322387415
+    after = raw["afterload"]
+    assert scene.windkessel == pytest.approx(
+        (
+            after["Rp_mmHg_s_per_ml"] * resistance,
+            after["C_ml_per_mmHg"] * compliance,
+            after["Rd_mmHg_s_per_ml"] * resistance,
+        ),
+        rel=1e-12,
+    )
+    assert scene.preload_pressure == pytest.approx(raw["preload"]["pressure_mmHg"] * 133.322387415)
+    assert scene.afterloads == ()
+
+
+@pytest.mark.parametrize("name", ["bench-dynamic", "bench-static"])
+def test_bench_reuses_the_surrogates_fitted_rig(name):
+    rig = load_card()["rig"]
+    scene = load_scene(name)
+    assert scene.column_diameter / mm == pytest.approx(rig["column_diameter_mm"], rel=1e-3)
+    assert scene.cable_friction == pytest.approx(rig["cable_friction_exponent"], rel=1e-3)
+
+
+# ---------------------------------------------------------------------------- bad files
+
+# (line in bench-dynamic.toml, its replacement, key, value as printed (None: missing), allowed)
+BAD_VALUES = {
+    "wrong type: string for a number": (
+        "omega = 4.0 ",
+        'omega = "four" ',
+        "design.omega",
+        "'four'",
+        "[0, 6]",
+    ),
+    "wrong type: bool for a number": (
+        "omega = 4.0 ",
+        "omega = true ",
+        "design.omega",
+        "True",
+        "[0, 6]",
+    ),
+    "wrong type: number for a list": (
+        "pressures_mmHg = [30, 60, 90]",
+        "pressures_mmHg = 60",
+        "afterload.pressures_mmHg",
+        "60",
+        "list",
+    ),
+    "wrong type: string for a choice": (
+        'shape = "linear"',
+        'shape = "square"',
+        "actuation.shape",
+        "'square'",
+        "linear, smoothstep, cosine",
+    ),
+    "out of range: shortening": (
+        "shortening = 0.4 ",
+        "shortening = 0.9 ",
+        "design.shortening",
+        "0.9",
+        "[0, 0.65]",
+    ),
+    "out of range: bpm zero": ("bpm = 30 ", "bpm = 0 ", "actuation.bpm", "0", "(0, 300]"),
+    "out of range: one pressure of a list": (
+        "pressures_mmHg = [30, 60, 90]",
+        "pressures_mmHg = [30, 60, 200]",
+        "afterload.pressures_mmHg[2]",
+        "200",
+        "[0, 150]",
+    ),
+    "out of range: nan": (
+        "exponent = 0.4945",
+        "exponent = nan",
+        "cable_friction.exponent",
+        "nan",
+        "[0, 3]",
+    ),
+    "missing key": ("omega = 4.0 ", "# no omega ", "design.omega", None, "[0, 6]"),
+    "unknown effect": (
+        '"cable_friction"]',
+        '"cable_friction", "warp_drive"]',
+        "effects",
+        "['warp_drive']",
+        "column_rise, column_inertia",
+    ),
+    "effect of another afterload": (
+        '"cable_friction"]',
+        '"cable_friction", "valves"]',
+        "effects",
+        "['valves']",
+        "column_rise, column_inertia",
+    ),
+    "effects not a list": (
+        'effects = ["column_rise", "column_inertia", "tube_inertia", "tube_resistance", '
+        '"minor_loss", "cable_friction"]',
+        'effects = "column_rise"',
+        "effects",
+        "'column_rise'",
+        "column_rise, column_inertia",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_VALUES))
+def test_bad_value_names_file_key_value_and_allowed(tmp_path, case):
+    old, new, key, value, allowed = BAD_VALUES[case]
+    path = bad_scene(tmp_path, old, new)
+    with pytest.raises(ValueError) as err:
+        load_scene(path)
+    message = str(err.value)
+    assert str(path) in message
+    if value is None:
+        assert f"'{key}' is missing" in message
+    else:
+        assert f"'{key}' = {value}" in message
+    assert allowed in message
+
+
+def test_unknown_key_names_file_key_and_value(tmp_path):
+    path = bad_scene(tmp_path, "shortening = 0.4 ", "shortening = 0.4\nhelix_turns = 3 ")
+    with pytest.raises(ValueError) as err:
+        load_scene(path)
+    message = str(err.value)
+    assert str(path) in message
+    assert "'design.helix_turns'" in message
+    assert "3" in message
+
+
+def test_unknown_key_message_lists_the_allowed_keys(tmp_path):
+    path = bad_scene(tmp_path, "shortening = 0.4 ", "shortening = 0.4\nhelix_turns = 3 ")
+    with pytest.raises(ValueError) as err:
+        load_scene(path)
+    assert "omega" in str(err.value)
+    assert "shortening" in str(err.value).replace("'design.helix_turns'", "")
+
+
+def test_unknown_scene_name_lists_the_shipped_scenes():
+    with pytest.raises(ValueError) as err:
+        load_scene("nope")
+    message = str(err.value)
+    assert "'nope'" in message
+    assert all(name in message for name in SCENE_NAMES)
+
+
+def test_missing_scene_file_is_named(tmp_path):
+    path = tmp_path / "missing.toml"
+    with pytest.raises(ValueError, match=r"missing\.toml"):
+        load_scene(path)
+
+
+def test_invalid_toml_names_the_file_and_the_line(tmp_path):
+    path = bad_scene(tmp_path, "omega = 4.0 ", "omega = 4.0.1 ")
+    line = BENCH_TEXT[: BENCH_TEXT.index("omega = 4.0 ")].count("\n") + 1
+    with pytest.raises(ValueError) as err:
+        load_scene(path)
+    message = str(err.value)
+    assert str(path) in message
+    assert "not valid TOML" in message
+    assert f"line {line}" in message
+
+
+def test_inconsistent_actuation_fractions_are_rejected(tmp_path):
+    path = bad_scene(tmp_path, "hold_fraction = 0.0", "hold_fraction = 0.2")
+    with pytest.raises(ValueError) as err:
+        load_scene(path)
+    assert str(path) in str(err.value)
+    assert "1.2" in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [{"effects": ("warp_drive",)}, {"shortening": 0.9}, {"bpm": -1.0}, {"omega": math.nan}],
+    ids=["unknown-effect", "shortening", "bpm", "omega-nan"],
+)
+def test_scene_replace_validates_like_a_file(changes):
+    key = next(iter(changes))
+    with pytest.raises(ValueError, match=key if key != "effects" else "'effects'"):
+        load_scene("bench-dynamic").replace(**changes)
+
+
+# ---------------------------------------------------------------------------- opt-in effects
+
+
+def count_eqns(jaxpr, primitive=None):
+    """Equations of a jaxpr and of every sub-jaxpr (pjit, cond, ...), optionally of one kind."""
+    n = 0
+    for eqn in jaxpr.eqns:
+        n += primitive is None or eqn.primitive.name == primitive
+        for param in eqn.params.values():
+            for sub in param if isinstance(param, list | tuple) else (param,):
+                if isinstance(sub, jex.core.ClosedJaxpr):
+                    n += count_eqns(sub.jaxpr, primitive)
+                elif isinstance(sub, jex.core.Jaxpr):
+                    n += count_eqns(sub, primitive)
+    return n
+
+
+def traced(effects):
+    """(initial state, jaxpr of the vector field) of the bench with these effects."""
+    circuit = build_circuit(load_scene("bench-dynamic").replace(effects=tuple(effects)))
+    y = circuit.init()
+    jaxpr = jax.make_jaxpr(circuit)(0.3, y)
+    dy = circuit(0.3, y)
+    assert jax.tree_util.tree_structure(dy) == jax.tree_util.tree_structure(y)
+    return y, jaxpr.jaxpr
+
+
+def without(*names):
+    return tuple(e for e in ALL_BENCH if e not in names)
+
+
+def test_shipped_bench_has_every_water_column_effect():
+    assert set(load_scene("bench-dynamic").effects) == set(ALL_BENCH)
+
+
+def test_without_inertance_the_flow_is_not_a_state():
+    y_all, jaxpr_all = traced(ALL_BENCH)
+    y_less, jaxpr_less = traced(without("column_inertia", "tube_inertia"))
+    assert "flow" in y_all
+    assert "flow" not in y_less
+    assert len(jax.tree_util.tree_leaves(y_less)) == len(jax.tree_util.tree_leaves(y_all)) - 1
+    assert str(jaxpr_less) != str(jaxpr_all)
+    assert count_eqns(jaxpr_less) < count_eqns(jaxpr_all)
+
+
+@pytest.mark.parametrize(
+    "base",
+    [ALL_BENCH, without("column_inertia", "tube_inertia")],
+    ids=["with-inertance", "algebraic-flow"],
+)
+def test_minor_loss_off_removes_its_abs_from_the_traced_code(base):
+    _, jaxpr_on = traced(base)
+    _, jaxpr_off = traced(tuple(e for e in base if e != "minor_loss"))
+    assert count_eqns(jaxpr_off) < count_eqns(jaxpr_on)
+    assert count_eqns(jaxpr_off, "abs") == count_eqns(jaxpr_on, "abs") - 1
+
+
+@pytest.mark.parametrize(
+    "effect", ["column_rise", "tube_resistance", "cable_friction", "column_inertia"]
+)
+def test_removing_any_effect_shrinks_the_traced_code(effect):
+    _, jaxpr_on = traced(ALL_BENCH)
+    _, jaxpr_off = traced(without(effect))
+    assert count_eqns(jaxpr_off) < count_eqns(jaxpr_on)
+
+
+def test_an_undetermined_outflow_is_refused():
+    with pytest.raises(ValueError, match="undetermined"):
+        build_circuit(load_scene("bench-dynamic").replace(effects=("column_rise",)))
+
+
+@pytest.fixture(scope="module")
+def minor_loss_runs():
+    """20 beats of the bench with K = 1, with K negligible, and without the minor loss."""
+    scene = load_scene("bench-dynamic")
+    return {
+        "K=1": run(scene, beats=20),
+        "K tiny": run(scene.replace(loss_coefficient=1e-9), beats=20),
+        "off": run(scene.replace(effects=without("minor_loss")), beats=20),
+    }
+
+
+@pytest.mark.parametrize("metric", ["stroke_volume", "mech_work", "peak_force"])
+def test_negligible_minor_loss_agrees_with_minor_loss_off(minor_loss_runs, metric):
+    tiny, off = minor_loss_runs["K tiny"], minor_loss_runs["off"]
+    assert tiny.ok and off.ok
+    for a, b in zip(tiny.members, off.members, strict=True):
+        assert a.metrics[metric] == pytest.approx(b.metrics[metric], rel=1e-6)
+
+
+def test_unit_minor_loss_is_not_negligible(minor_loss_runs):
+    """The comparison above is not vacuous: with K = 1 the loss changes SV by more than 10 %."""
+    for a, b in zip(minor_loss_runs["K=1"].members, minor_loss_runs["off"].members, strict=True):
+        assert abs(a.metrics["stroke_volume"] / b.metrics["stroke_volume"] - 1) > 0.1
+
+
+# ---------------------------------------------------------------------------- static scene
+
+
+@pytest.fixture(scope="module")
+def static_run():
+    calls = []
+    original = experiment.periodic_beats
+
+    def spy(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(experiment, "periodic_beats", spy)
+        result = run("bench-static")
+    return result, calls
+
+
+def test_static_scene_integrates_no_ode(static_run):
+    result, calls = static_run
+    assert calls == []
+    assert result.scene.static
+    assert len(result.members) == 3
+    for m in result.members:
+        assert m.ok
+        assert m.beats == 0
+        assert m.traces == {}
+        assert "stroke_volume" not in m.metrics
+
+
+def test_static_stroke_volume_equals_the_quasi_static_solve(static_run):
+    result, _ = static_run
+    scene = result.scene
+    pump = load()
+    stroke = scene.shortening * pump.cable_length(scene.omega)
+    k = RHO * GRAVITY / (math.pi / 4 * scene.column_diameter**2)
+    solve = jax.jit(lambda p: quasi_static_stroke(pump, scene.omega, stroke, p, k))
+    friction = math.exp(scene.cable_friction)
+    for m, head in zip(result.members, (30, 60, 90), strict=True):
+        assert m.afterload == pytest.approx(head * mmHg)
+        ref = solve(jnp.asarray(head * 133.322387415))
+        sv = float(ref.stroke_volume)
+        assert m.metrics["static_stroke_volume"] == pytest.approx(sv, rel=1e-9)
+        # capstan friction scales the measured force and work, not the hydraulics
+        assert m.metrics["static_peak_force"] == pytest.approx(
+            friction * float(ref.peak_force), rel=1e-9
+        )
+        assert m.metrics["static_mech_work"] == pytest.approx(
+            friction * float(ref.mechanical_work), rel=1e-9
+        )
+        assert m.metrics["static_efficiency"] == pytest.approx(
+            head * 133.322387415 * sv / m.metrics["static_mech_work"], rel=1e-9
+        )
+    svs = [m.metrics["static_stroke_volume"] for m in result.members]
+    assert np.all(np.diff(svs) < 0)  # a higher column lets less out
