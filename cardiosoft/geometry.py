@@ -37,6 +37,7 @@ __all__ = [
     "ApexMotion",
     "Shell",
     "apex_motion",
+    "apex_motion_table",
     "arc_length",
     "cable_length",
     "cable_pull",
@@ -72,8 +73,14 @@ class Shell(eqx.Module):
         check_positive("shell wall thickness w", self.w, "mm", scale=mm)
         if not isinstance(self.A, jax.core.Tracer):
             check_range(
-                "shell apex height", self.apex_height, "mm", 0.0, float(self.A) / mm,
-                lo_open=True, hi_open=True, scale=mm,
+                "shell apex height",
+                self.apex_height,
+                "mm",
+                0.0,
+                float(self.A) / mm,
+                lo_open=True,
+                hi_open=True,
+                scale=mm,
             )
 
     @property
@@ -198,57 +205,14 @@ def apex_motion(shell: Shell, omega, shortening) -> ApexMotion:
     )
 
 
-def _table(shell: Shell, omegas, shortenings):
+def apex_motion_table(shell: Shell, omegas, shortenings):
+    """|dz| (mm) and |dalpha| (deg) on the grid shortenings x omegas (Fig. 7(a)), as numpy."""
     grid_o, grid_c = np.meshgrid(np.asarray(omegas, float), np.asarray(shortenings, float))
     motion = jax.jit(jax.vmap(jax.vmap(lambda o, c: apex_motion(shell, o, c))))(grid_o, grid_c)
     return np.abs(np.asarray(motion.dz)) / mm, np.degrees(np.abs(np.asarray(motion.dalpha)))
 
 
-def _main(argv=None) -> int:
-    import argparse
-    import sys
-
-    from cardiosoft._cli import fail, refuse_overwrite
-
-    jax.config.update("jax_enable_x64", True)
-    parser = argparse.ArgumentParser(
-        prog="python -m cardiosoft.geometry",
-        description="Apex translation and rotation of the paper's geometrical model (Fig. 7(a)).",
-    )
-    parser.add_argument("--plot", metavar="FILE", help="also draw Fig. 7(a) to FILE (png/pdf/svg)")
-    parser.add_argument("--force", action="store_true", help="overwrite an existing --plot FILE")
-    args = parser.parse_args(argv)
-    try:
-        if args.plot:
-            from cardiosoft.plots import check_figure_path
-
-            check_figure_path(args.plot)
-            refuse_overwrite(args.plot, args.force)
-        shell = Shell()
-        omegas = np.arange(1, 7)
-        shortenings = np.round(np.arange(1, 7) * 0.1, 2)
-        dz, dalpha = _table(shell, omegas, shortenings)
-    except ValueError as err:
-        return fail(err)
-
-    print(f"Shell A = {float(shell.A) / mm:g} mm, B = {float(shell.B) / mm:g} mm, "
-          f"w = {float(shell.w) / mm:g} mm, apex plane {float(shell.apex_height) / mm:g} mm; "
-          f"cavity {float(cavity_volume(shell)) / 1e-6:.1f} ml")
-    for title, values, fmt in (
-        ("Apex translation |dz| [mm] (towards the base)", dz, "{:7.1f}"),
-        ("Apex rotation |dalpha| [deg]", dalpha, "{:7.1f}"),
-    ):
-        print(f"\n{title}")
-        print("  C \\ Omega" + "".join(f"{o:7d}" for o in omegas))
-        for c, row in zip(shortenings, values, strict=True):
-            print(f"  {c:9.1f}" + "".join(fmt.format(v) for v in row))
-    if args.plot:
-        from cardiosoft.plots import plot_apex_motion
-
-        plot_apex_motion(omegas, shortenings, dz, dalpha, args.plot)
-        print(f"\nwrote {args.plot}", file=sys.stderr)
-    return 0
-
-
 if __name__ == "__main__":
-    raise SystemExit(_main())
+    from cardiosoft._cli import geometry_main
+
+    raise SystemExit(geometry_main())
