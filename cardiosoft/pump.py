@@ -54,7 +54,7 @@ import numpy as np
 from cardiosoft._validate import check_range
 from cardiosoft.datasets import sha256
 from cardiosoft.geometry import Shell, cable_length, cavity_volume
-from cardiosoft.units import ml, mmHg
+from cardiosoft.units import mmHg
 
 __all__ = [
     "DEFAULT_ARTIFACT",
@@ -347,7 +347,3 @@ def load(path=None) -> PumpSurrogate:
     )
     return eqx.tree_deserialise_leaves(weights, skeleton)
 
-
-def volume_ml(v) -> np.ndarray:
-    """Convenience: a volume in m^3 as a numpy array in ml."""
-    return np.asarray(v) / ml
