@@ -3,8 +3,8 @@ artificial heart ventricle (after "Harnessing Mechanical Instabilities in the De
 Efficient Soft Pump for an Artificial Heart Ventricle Simulator").
 
 SI units inside (m, m^3, Pa, N, s); see :mod:`cardiosoft.units` for conversions. float64 is
-recommended (``jax.config.update("jax_enable_x64", True)``) and is what the CLIs, notebooks and
-tests use; the library never switches it on by itself.
+recommended (switch on JAX's 64-bit mode in your script, as the README shows) and is what the
+CLIs, notebooks and tests use; the library never switches it on by itself.
 
 The public names below are imported on first use, so that ``python -m cardiosoft.<module>`` runs
 a module that the package itself has not imported yet, and ``import cardiosoft`` stays cheap.
