@@ -139,7 +139,7 @@ BAD_VALUES = {
         "0.9",
         "[0, 0.65]",
     ),
-    "out of range: bpm zero": ("bpm = 30 ", "bpm = 0 ", "actuation.bpm", "0", "(0, 300]"),
+    "out of range: bpm zero": ("bpm = 30\n", "bpm = 0\n", "actuation.bpm", "0", "(0, 300]"),
     "out of range: one pressure of a list": (
         "pressures_mmHg = [30, 60, 90]",
         "pressures_mmHg = [30, 60, 200]",
