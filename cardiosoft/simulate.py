@@ -69,67 +69,41 @@ def _fmt(value, spec):
     )
 
 
+# (header, unit, summary record key, format): one spec per table, so that headers, units and
+# cells cannot drift apart. The paper's rows reuse the bench spec with the same keys.
+_BENCH_COLUMNS = (
+    ("afterload", "mmHg", "afterload_mmHg", ".0f"),
+    ("static SV", "ml", "static_sv_ml", ".1f"),
+    ("dynamic SV", "ml", "dynamic_sv_ml", ".1f"),
+    ("peak force", "N", "peak_force_N", ".1f"),
+    ("mech. work", "J", "mech_work_J", ".2f"),
+    ("efficiency", "-", "efficiency", ".3f"),
+    ("EF", "-", "ef", ".2f"),
+    ("beats", "", "beats", "d"),
+)
+_CIRCULATION_COLUMNS = (
+    ("scene", "", "label", "s"),
+    ("SV", "ml", "dynamic_sv_ml", ".1f"),
+    ("EDV", "ml", "edv_ml", ".1f"),
+    ("ESV", "ml", "esv_ml", ".1f"),
+    ("EF", "-", "ef", ".2f"),
+    ("CO", "l/min", "cardiac_output_l_min", ".2f"),
+    ("peak force", "N", "peak_force_N", ".1f"),
+    ("mech. work", "J", "mech_work_J", ".2f"),
+    ("beats", "", "beats", "d"),
+)
+
+
 def _table(records, scene, paper) -> str:
-    bench = scene.afterload_type == "water_column"
-    head = (
-        [
-            "afterload",
-            "static SV",
-            "dynamic SV",
-            "peak force",
-            "mech. work",
-            "efficiency",
-            "EF",
-            "beats",
-        ]
-        if bench
-        else ["scene", "SV", "EDV", "ESV", "EF", "CO", "peak force", "mech. work", "beats"]
-    )
-    units = (
-        ["mmHg", "ml", "ml", "N", "J", "-", "-", ""]
-        if bench
-        else ["", "ml", "ml", "ml", "-", "l/min", "N", "J", ""]
-    )
+    columns = _BENCH_COLUMNS if scene.afterload_type == "water_column" else _CIRCULATION_COLUMNS
+    head = [c[0] for c in columns]
+    units = [c[1] for c in columns]
     rows = []
     for r in records:
-        if bench:
-            row = [
-                _fmt(r["afterload_mmHg"], ".0f"),
-                _fmt(r["static_sv_ml"], ".1f"),
-                _fmt(r["dynamic_sv_ml"], ".1f"),
-                _fmt(r["peak_force_N"], ".1f"),
-                _fmt(r["mech_work_J"], ".2f"),
-                _fmt(r["efficiency"], ".3f"),
-                _fmt(r["ef"], ".2f"),
-                str(r["beats"]),
-            ]
-        else:
-            row = [
-                r["label"],
-                _fmt(r["dynamic_sv_ml"], ".1f"),
-                _fmt(r["edv_ml"], ".1f"),
-                _fmt(r["esv_ml"], ".1f"),
-                _fmt(r["ef"], ".2f"),
-                _fmt(r["cardiac_output_l_min"], ".2f"),
-                _fmt(r["peak_force_N"], ".1f"),
-                _fmt(r["mech_work_J"], ".2f"),
-                str(r["beats"]),
-            ]
-        rows.append(row)
+        rows.append([_fmt(r.get(key), fmt) for _, _, key, fmt in columns])
         if paper is not None and r.get("afterload_mmHg") in paper:
-            p = paper[r["afterload_mmHg"]]
-            rows.append(
-                [
-                    "  paper",
-                    f"{p['static_sv_ml']:.1f}",
-                    f"{p['dynamic_sv_ml']:.1f}",
-                    f"{p['peak_force_N']:.1f}",
-                    f"{p['mech_work_J']:.2f}",
-                    f"{p['efficiency']:.3f}",
-                    "-",
-                    "-",
-                ]
-            )
+            p = {**paper[r["afterload_mmHg"]], "afterload_mmHg": None}
+            rows.append(["  paper", *[_fmt(p.get(key), fmt) for _, _, key, fmt in columns[1:]]])
     widths = [max(len(x) for x in col) for col in zip(head, units, *rows, strict=True)]
     line = "  ".join
     out = [

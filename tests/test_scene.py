@@ -26,14 +26,7 @@ from cardiosoft.units import mm, mmHg
 
 SCENE_DIR = Path(str(resources.files("cardiosoft") / "scenes"))
 BENCH_TEXT = (SCENE_DIR / "bench-dynamic.toml").read_text()
-ALL_BENCH = (
-    "column_rise",
-    "column_inertia",
-    "tube_inertia",
-    "tube_resistance",
-    "minor_loss",
-    "cable_friction",
-)
+ALL_BENCH = EFFECTS["water_column"]  # every effect a water-column scene may list
 # water at about 20 C and standard gravity, as in tests/README.md (not the library's constants)
 RHO, GRAVITY = 998.0, 9.80665
 
