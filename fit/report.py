@@ -88,9 +88,9 @@ def metrics(model: PumpSurrogate, rig: pipeline.Rig, data: datasets.PaperData) -
 def affine_force_bound(afterload, force) -> float:
     """The smallest worst-case relative error of any force law affine in the afterload.
 
-    ``min over (a, b) of max_i |a + b P_i - F_i| / F_i``, a linear programme. On the paper's
-    Fig. 10 forces it tells how much of a peak-force miss is owed to a model whose peak force
-    grows at one rate with afterload, while the paper's rises at 0.99 and then 0.30 N/mmHg.
+    ``min over (a, b) of max_i |a + b P_i - F_i| / F_i``, a linear programme. On measured
+    peak forces it tells how much of a model's miss is owed to its force growing at one rate
+    with afterload where the measurements' rate changes.
     """
     from scipy.optimize import linprog
 
@@ -162,7 +162,7 @@ def format_report(m: dict, data: datasets.PaperData, rig_card: dict) -> str:
     add(f"  peak-force rise [N/mmHg] {slopes};")
     add(
         f"  no force law affine in the afterload gets closer than "
-        f"{100 * affine_force_bound(p_a, f_paper):.1f} % to all three paper forces"
+        f"{100 * affine_force_bound(p_a, f_paper):.1f} % to all {len(p_a)} paper forces"
     )
     add("")
     add("FEM comparisons at C = 0.4 (helical Omega 4 vs longitudinal Omega 0):")
