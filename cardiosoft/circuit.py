@@ -34,7 +34,7 @@ from cardiosoft.actuation import CablePull
 from cardiosoft.circulation import AbstractAfterload, AbstractPreload, Valve
 from cardiosoft.pump import PumpSurrogate
 
-__all__ = ["CableFriction", "PumpCircuit"]
+__all__ = ["CableFriction", "PumpCircuit", "ShellViscoelasticity"]
 
 
 class CableFriction(eqx.Module):
@@ -53,6 +53,43 @@ class CableFriction(eqx.Module):
 
     def factor(self, velocity):
         return jnp.exp(self.exponent * jnp.tanh(velocity / self.speed_scale))
+
+
+class ShellViscoelasticity(eqx.Module):
+    """Relaxation of the silicone shell: a standard linear solid on the chamber's volume.
+
+    The surrogate's chamber law is the relaxed (equilibrium) response. In parallel with it sits a
+    Maxwell branch: a spring of stiffness ``r E(x)`` (``E`` the surrogate's zero-pressure chamber
+    elastance, Pa/m^3) in series with a dashpot, with energy
+    ``U_v = r E(x) (V - V_eq(x) - s_v)^2 / 2`` and the dashpot's volume ``s_v`` relaxing as
+    ``ds_v/dt = (V - V_eq(x) - s_v) / tau``. A fast stroke meets a chamber ``1 + r`` times
+    stiffer than a slow one; held, it creeps back to the surrogate in a time ``tau``. The branch
+    adds ``dU_v/dV`` to the chamber pressure and ``dU_v/dx`` to the cable force, and dissipates
+    ``r E (V - V_eq - s_v)^2 / tau >= 0``.
+
+    - ``stiffness_ratio``: r (dimensionless, >= 0).
+    - ``relaxation_time``: tau (s, > 0).
+    """
+
+    stiffness_ratio: jax.Array = eqx.field(converter=jnp.asarray)
+    relaxation_time: jax.Array = eqx.field(converter=jnp.asarray)
+
+    def strain(self, pump, volume, x, omega, relaxed):
+        """V - V_eq(x) - s_v (m^3): the Maxwell spring's stretch."""
+        return volume - pump.zero_pressure_volume(x, omega) - relaxed
+
+    def energy(self, pump, volume, x, omega, relaxed):
+        """U_v (J)."""
+        e = pump.chamber_elastance(x, omega)
+        return 0.5 * self.stiffness_ratio * e * self.strain(pump, volume, x, omega, relaxed) ** 2
+
+    def rest_state(self, pump, volume, x, omega):
+        """The relaxed dashpot volume s_v = V - V_eq(x) (m^3)."""
+        return volume - pump.zero_pressure_volume(x, omega)
+
+    def rate(self, pump, volume, x, omega, relaxed):
+        """ds_v/dt (m^3/s)."""
+        return self.strain(pump, volume, x, omega, relaxed) / self.relaxation_time
 
 
 class PumpCircuit(eqx.Module):
@@ -77,6 +114,7 @@ class PumpCircuit(eqx.Module):
     inlet_valve: Valve | None = None
     preload: AbstractPreload | None = None
     cable_friction: CableFriction | None = None
+    viscoelasticity: ShellViscoelasticity | None = None
 
     def __check_init__(self):
         if (self.preload is None) != (self.inlet_valve is None):
@@ -115,6 +153,10 @@ class PumpCircuit(eqx.Module):
         y["volume"] = self.pump.volume(p_fill, self.actuation(0.0), self.omega)
         if self.has_flow_state:
             y["flow"] = jnp.zeros_like(y["volume"])
+        if self.viscoelasticity is not None:
+            y["relaxation"] = self.viscoelasticity.rest_state(
+                self.pump, y["volume"], self.actuation(0.0), self.omega
+            )
         return y
 
     def _algebraic_outflow(self, ya, dp):
@@ -134,6 +176,12 @@ class PumpCircuit(eqx.Module):
         volume = y["volume"]
         ya = y["afterload"]
         p_pump = self.pump.pressure(volume, x, self.omega)
+        force = self.pump.force(volume, x, self.omega)
+        if self.viscoelasticity is not None:
+            dp, df = jax.grad(self.viscoelasticity.energy, argnums=(1, 2))(
+                self.pump, volume, x, self.omega, y["relaxation"]
+            )
+            p_pump, force = p_pump + dp, force + df
         p_node = self.afterload.node_pressure(ya)
         q_out = y["flow"] if self.has_flow_state else self._algebraic_outflow(ya, p_pump - p_node)
         out = {"pull": x, "pump_pressure": p_pump, "node_pressure": p_node, "outflow": q_out}
@@ -141,7 +189,6 @@ class PumpCircuit(eqx.Module):
             p_pre = self.preload.pressure(y["preload"])
             out["preload_pressure"] = p_pre
             out["inflow"] = self.inlet_valve.flow(p_pre - p_pump)
-        force = self.pump.force(volume, x, self.omega)
         out["shell_force"] = force
         if self.cable_friction is not None:
             force = force * self.cable_friction.factor(self.actuation.velocity(t))
@@ -157,6 +204,10 @@ class PumpCircuit(eqx.Module):
         }
         if self.preload is not None:
             dy["preload"] = self.preload.rhs(y["preload"], q_in)
+        if self.viscoelasticity is not None:
+            dy["relaxation"] = self.viscoelasticity.rate(
+                self.pump, y["volume"], s["pull"], self.omega, y["relaxation"]
+            )
         if self.has_flow_state:
             ya, q = y["afterload"], y["flow"]
             drop = s["pump_pressure"] - s["node_pressure"]

@@ -19,7 +19,7 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
-from cardiosoft.circuit import CableFriction, PumpCircuit
+from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
 from cardiosoft.circulation import AtrialSource, Bench, Tube, Valve, WaterColumn, Windkessel3
 from cardiosoft.metrics import BeatMetrics, beat_metrics
 from cardiosoft.pump import Domain, PumpSurrogate, load
@@ -85,6 +85,11 @@ def _circuit(scene: Scene, pump: PumpSurrogate, afterload) -> PumpCircuit:
         shape=scene.shape,
     )
     friction = CableFriction(scene.cable_friction) if scene.has("cable_friction") else None
+    viscoelasticity = (
+        ShellViscoelasticity(scene.viscoelastic_ratio, scene.relaxation_time)
+        if scene.has("shell_viscoelasticity")
+        else None
+    )
     if scene.afterload_type == "water_column":
         column = WaterColumn(
             scene.column_diameter,
@@ -101,7 +106,12 @@ def _circuit(scene: Scene, pump: PumpSurrogate, afterload) -> PumpCircuit:
             minor_loss=scene.has("minor_loss"),
         )
         return PumpCircuit(
-            pump, scene.omega, actuation, Bench(tube, column), cable_friction=friction
+            pump,
+            scene.omega,
+            actuation,
+            Bench(tube, column),
+            cable_friction=friction,
+            viscoelasticity=viscoelasticity,
         )
     rp, c, rd = scene.windkessel
     r_in, r_out = scene.valve_resistance
@@ -114,6 +124,7 @@ def _circuit(scene: Scene, pump: PumpSurrogate, afterload) -> PumpCircuit:
         inlet_valve=Valve(r_in, scene.valve_kind, scene.valve_smoothing),
         preload=AtrialSource(scene.preload_pressure),
         cable_friction=friction,
+        viscoelasticity=viscoelasticity,
     )
 
 
@@ -348,6 +359,8 @@ def _run_members(scene: Scene, variants, beats, pump) -> RunResult:
         traces |= {k: np.asarray(v[i]) for k, v in signals.items()}
         if "column_volume" in out.ys["afterload"]:
             traces["column_volume"] = np.asarray(out.ys["afterload"]["column_volume"][i])
+        if "relaxation" in out.ys:
+            traces["relaxation"] = np.asarray(out.ys["relaxation"][i])
         members.append(
             MemberResult(
                 label,

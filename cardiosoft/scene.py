@@ -13,7 +13,9 @@ compiled vector field (not multiplied by zero):
   (inertance of the column, grows with its height), ``tube_inertia``, ``tube_resistance``
   (Poiseuille), ``minor_loss`` (Borda-Carnot, ``K q|q|``);
 - Windkessel: ``valves`` (inlet and outlet), ``preload`` (atrial pressure source);
-- any: ``cable_friction`` (capstan friction at the base holes, changes the measured force).
+- any: ``cable_friction`` (capstan friction at the base holes, changes the measured force),
+  ``shell_viscoelasticity`` (the chamber stiffer to fast strokes than to slow ones, relaxing
+  back to the surrogate; :class:`~cardiosoft.circuit.ShellViscoelasticity`).
 
 Every message about a bad file names the file, the key, the value and what is allowed.
 """
@@ -39,8 +41,9 @@ EFFECTS = {
         "tube_resistance",
         "minor_loss",
         "cable_friction",
+        "shell_viscoelasticity",
     ),
-    "windkessel3": ("valves", "preload", "cable_friction"),
+    "windkessel3": ("valves", "preload", "cable_friction", "shell_viscoelasticity"),
 }
 SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")
 ACCURACY = ("fast", "default", "reference")
@@ -77,6 +80,8 @@ class Scene:
     valve_smoothing: float = 0.5 * mmHg
     valve_resistance: tuple[float, float] = (math.nan, math.nan)  # inlet, outlet (SI)
     cable_friction: float = 0.0
+    viscoelastic_ratio: float = 0.0
+    relaxation_time: float = math.nan  # s
     accuracy: str = "default"
     max_beats: int = 30
     steady_tol: float = 0.01
@@ -153,6 +158,10 @@ _NUMBERS = (
             10.0, True, _R, index=1, when="effect:valves"),
     _Number("cable_friction", "cable_friction.exponent", "", 0.0, 3.0,
             when="effect:cable_friction"),
+    _Number("viscoelastic_ratio", "shell_viscoelasticity.stiffness_ratio", "", 0.0, 20.0,
+            when="effect:shell_viscoelasticity"),
+    _Number("relaxation_time", "shell_viscoelasticity.relaxation_time_s", "s", 0.0, 100.0,
+            True, when="effect:shell_viscoelasticity"),
     _Number("max_beats", "solve.max_beats", "beats", 1.0, 500.0, default=30),
     _Number("steady_tol", "solve.steady_tol", "ml or mmHg", 0.0, 10.0, default=0.01),
 )
@@ -170,6 +179,7 @@ _SECTIONS = {  # table -> when it must be present
     "preload": "effect:preload",
     "valves": "effect:valves",
     "cable_friction": "effect:cable_friction",
+    "shell_viscoelasticity": "effect:shell_viscoelasticity",
     "solve": "optional",
 }
 

@@ -202,6 +202,7 @@ PERIODIC_SCALES = {
     "volume": ml,
     "flow": ml,  # per s
     "column_volume": ml,
+    "relaxation": ml,  # the shell dashpot's volume
     "pc": mmHg,
     "pa": mmHg,
 }

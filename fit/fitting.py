@@ -13,12 +13,13 @@ from cardiosoft.units import mm, mmHg
 from fit import pipeline, report
 
 PARAMETER_MEANINGS = {
-    "ef_linear": "EF_0 law: linear-in-C rate a(Omega) = softplus(p0 + p1 (Omega - 3)/2)",
-    "ef_quadratic": "EF_0 law: quadratic-in-C rate b(Omega), same form",
-    "buckling_twist": "EF_0 law: twist Omega*C at buckling onset, softplus(p)",
-    "buckling_width": "EF_0 law: width of the buckling step in Omega*C, softplus(p)",
-    "fold_depth": "EF_0 law: depth of the fold step s0 + s1 C, softplus each",
-    "three_fold_depth": "EF_0 law: extra depth of three-fold shells, softplus(p)",
+    "ef_linear": "EF_0 law: linear-in-C rate a(Omega) = softplus(p0) + softplus(p1) "
+    "tanh(Omega / 0.3), longitudinal and helical",
+    "ef_quadratic": "EF_0 law: quadratic-in-C rate b(Omega) = softplus(p0 + p1 (Omega - 3)/2)",
+    "buckling_twist": "EF_0 law: twist Omega*C at buckling onset, softplus(p); held, not fitted",
+    "buckling_width": "EF_0 law: width of the buckling step in Omega*C, softplus(p); held",
+    "fold_depth": "EF_0 law: depth of the four-fold step d0 + d1 Omega C, softplus each",
+    "three_fold_depth": "EF_0 law: depth of three-fold shells, replacing the step, softplus(p)",
     "log_stiffness": "zero-pressure force W'(x) = K x / (1 + (x/x_b)^2)^g: "
     "log K [N/m] at Omega 4 and its slope in (Omega - 4)/4",
     "softening_exponent": "g - 0.5 = softplus(p): post-buckling decay of the force",
@@ -59,6 +60,25 @@ def rig_from_card(card: dict) -> pipeline.Rig:
     )
 
 
+def check_volume_decreases(model: PumpSurrogate, n: int = 651) -> None:
+    """Raise unless EF_0 is non-decreasing in C on a dense grid over the whole domain.
+
+    The three-fold switch of the EF_0 law is monotone only where the three-fold depth exceeds
+    the four-fold step at the transition (``cardiosoft.pump``), so the fit checks it.
+    """
+    d = model.domain
+    omegas = jnp.linspace(*d.omega, 121)
+    cs = jnp.linspace(*d.shortening, n)
+    ef = jax.vmap(lambda o: jax.vmap(lambda c: model._ef_zero_pressure(c, o))(cs))(omegas)
+    drop = np.asarray(jnp.diff(ef, axis=1))
+    if drop.min() < 0.0:
+        i, j = np.unravel_index(np.argmin(drop), drop.shape)
+        raise RuntimeError(
+            f"fitted EF_0 falls with C at Omega {float(omegas[i]):.2f}, C {float(cs[j]):.3f} "
+            f"(by {-drop.min():.2e}): the zero-pressure volume must decrease with the pull"
+        )
+
+
 def fit(data: datasets.PaperData, progress=print):
     """Fit stage 1 (with leave-one-out), the fold boundary and stage 2. Deterministic."""
     t = pipeline.targets(data)
@@ -88,6 +108,7 @@ def fit(data: datasets.PaperData, progress=print):
     ]
     vu_ml = float(initial_model().unloaded_volume) / 1e-6
     model = eqx.combine(stage1[0], static)
+    check_volume_decreases(model)
     progress(
         f"stage 2: mechanics on the Fig. 10 bench and the FEM comparisons "
         f"({pipeline.ADAM_STEPS} Adam steps)"

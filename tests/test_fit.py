@@ -124,7 +124,7 @@ def test_card_records_the_data_it_was_fitted_on(card):
     weights = REPO / "surrogates" / card["weights_file"]
     assert datasets.sha256(weights) == card["weights_sha256"]
     assert card["held_out"] == ["table2_experiment.csv"]
-    assert card["format_version"] == 1
+    assert card["format_version"] == 2
 
 
 class _Untouchable:

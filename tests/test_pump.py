@@ -25,7 +25,7 @@ from cardiosoft.static import column_stiffness, implicit_scalar_root, quasi_stat
 from cardiosoft.units import RHO_WATER, G, mm, mmHg
 
 REPO = Path(__file__).resolve().parent.parent
-ARTIFACT = REPO / "surrogates" / "ss950-v1.eqx"
+ARTIFACT = REPO / "surrogates" / "ss950-v2.eqx"
 
 OMEGA_LO, OMEGA_HI = 0.0, 6.0
 C_LO, C_HI = 0.0, 0.65

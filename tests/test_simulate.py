@@ -131,7 +131,12 @@ def test_bench_matches_the_papers_30_bpm_stroke_volumes(bench):
 
 # ---------------------------------------------------------------------------- periodicity
 
-PERIODIC = {"volume": "volume", "flow": "outflow", "column_volume": "column_volume"}
+PERIODIC = {
+    "volume": "volume",
+    "flow": "outflow",
+    "column_volume": "column_volume",
+    "relaxation": "relaxation",
+}
 
 
 def end_state(member, index=-1):
@@ -140,6 +145,7 @@ def end_state(member, index=-1):
         "afterload": {"column_volume": jnp.asarray(tr["column_volume"][index])},
         "flow": jnp.asarray(tr["outflow"][index]),
         "volume": jnp.asarray(tr["volume"][index]),
+        "relaxation": jnp.asarray(tr["relaxation"][index]),
     }
 
 
@@ -181,11 +187,13 @@ def test_one_more_beat_from_the_returned_state_repeats_it(bench):
                     y_next["afterload"]["column_volume"]
                     - float(y_end["afterload"]["column_volume"])
                 ),
+                abs(y_next["relaxation"] - float(y_end["relaxation"])),
             )
             / ML
         )
-        # converging towards the cycle: the next change is below the last one (and the tolerance)
-        assert change <= min(m.residual, tol), (m.label, change, m.residual)
+        # still periodic to the scene's tolerance one beat later. (Not necessarily below the last
+        # change: the shell's relaxation makes the approach to the cycle oscillate a little.)
+        assert change <= tol, (m.label, change, m.residual)
 
 
 # ---------------------------------------------------------------------------- Windkessel
@@ -236,25 +244,29 @@ def test_lv_windkessel_decays_exponentially_while_the_aortic_valve_is_shut(twent
 # ---------------------------------------------------------------------------- model findings
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="MODEL: the pull is prescribed and the cable cannot go slack, so at the start of each "
-    "30-bpm beat (the column still flowing back) the cable force is about -75 N: a cable pushing",
-)
 def test_a_cable_only_pulls(bench):
     for m in bench.members:
         assert m.traces["cable_force"].min() >= 0.0, (m.label, m.traces["cable_force"].min())
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="MODEL: dynamic peak force 140-166 N at 30 bpm against the paper's 54.4/84.2/93.3 N "
-    "(Fig. 10(d)); the peak is an inertial pressure surge (~200 mmHg) 0.15 s into the pull",
-)
-def test_dynamic_peak_force_is_near_the_papers(bench):
+def test_dynamic_peak_force_and_efficiency_are_near_the_papers(bench):
+    """Peak forces are not used by the bench calibration (SVs and work are): they validate."""
     paper = load_paper_data().fig10_bench
     for i, m in enumerate(bench.members):
-        assert m.metrics["peak_force"] == pytest.approx(paper["peak_force_N"][i], rel=0.25)
+        assert m.metrics["peak_force"] == pytest.approx(paper["peak_force_N"][i], rel=0.15)
+        assert m.metrics["efficiency"] == pytest.approx(paper["efficiency"][i], abs=0.02)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="MODEL: dynamic peak force 54.4/73.6/88.5 N at 30 bpm against the paper's "
+    "54.4/84.2/93.3 N (Fig. 10(d)): the quasi-static force already rises too evenly with the "
+    "afterload (python -m fit --report)",
+)
+def test_dynamic_peak_force_within_five_percent(bench):
+    paper = load_paper_data().fig10_bench
+    for i, m in enumerate(bench.members):
+        assert m.metrics["peak_force"] == pytest.approx(paper["peak_force_N"][i], rel=0.05)
 
 
 # ---------------------------------------------------------------------------- metrics
