@@ -84,8 +84,8 @@ class ShellViscoelasticity(eqx.Module):
         return 0.5 * self.stiffness_ratio * e * self.strain(pump, volume, x, omega, relaxed) ** 2
 
     def rest_state(self, pump, volume, x, omega):
-        """The relaxed dashpot volume s_v = V - V_eq(x) (m^3)."""
-        return volume - pump.zero_pressure_volume(x, omega)
+        """The relaxed dashpot volume s_v = V - V_eq(x) (m^3): the spring unstretched."""
+        return self.strain(pump, volume, x, omega, 0.0)
 
     def rate(self, pump, volume, x, omega, relaxed):
         """ds_v/dt (m^3/s)."""

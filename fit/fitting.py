@@ -69,7 +69,7 @@ def check_volume_decreases(model: PumpSurrogate, n: int = 651) -> None:
     d = model.domain
     omegas = jnp.linspace(*d.omega, 121)
     cs = jnp.linspace(*d.shortening, n)
-    ef = jax.vmap(lambda o: jax.vmap(lambda c: model._ef_zero_pressure(c, o))(cs))(omegas)
+    ef = jax.vmap(lambda o: pipeline.zero_pressure_ef(model, o, cs))(omegas)
     drop = np.asarray(jnp.diff(ef, axis=1))
     if drop.min() < 0.0:
         i, j = np.unravel_index(np.argmin(drop), drop.shape)

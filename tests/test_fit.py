@@ -13,6 +13,7 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -271,3 +272,19 @@ def test_refit_ignores_table_two(refit, refit_blind, data):
     assert card_b["metrics"]["table1_mae_ml"] == m["table1_mae_ml"]
     assert math.isfinite(card_b["metrics"]["table1_loo_mae_ml"])
     json.dumps(card_b)  # the card is JSON-ready
+
+
+def test_the_fit_refuses_an_ef_law_that_falls_with_the_pull():
+    """The three-fold switch is monotone only if d_3 exceeds the four-fold step there."""
+    from fit.fitting import check_volume_decreases
+
+    shipped = load()
+    check_volume_decreases(shipped)  # the shipped law passes
+    # three-fold depth ~0 and a deep four-fold step: EF_0 drops where Omega-1 shells turn 3-fold
+    shallow = eqx.tree_at(
+        lambda m: (m.three_fold_depth, m.fold_depth),
+        shipped,
+        (jnp.asarray(-20.0), jnp.asarray([3.0, 3.0])),
+    )
+    with pytest.raises(RuntimeError, match="falls with C at Omega"):
+        check_volume_decreases(shallow)
