@@ -32,7 +32,7 @@ import jax.numpy as jnp
 
 from cardiosoft.actuation import CablePull
 from cardiosoft.circulation import AbstractAfterload, AbstractPreload, Valve
-from cardiosoft.pump import PumpSurrogate
+from cardiosoft.pump import Chamber, PumpSurrogate
 
 __all__ = ["CableFriction", "PumpCircuit", "ShellViscoelasticity"]
 
@@ -74,22 +74,26 @@ class ShellViscoelasticity(eqx.Module):
     stiffness_ratio: jax.Array = eqx.field(converter=jnp.asarray)
     relaxation_time: jax.Array = eqx.field(converter=jnp.asarray)
 
-    def strain(self, pump, volume, x, omega, relaxed):
-        """V - V_eq(x) - s_v (m^3): the Maxwell spring's stretch."""
-        return volume - pump.zero_pressure_volume(x, omega) - relaxed
+    def strain(self, chamber: Chamber, volume, relaxed):
+        """V - V_eq(x) - s_v (m^3): the Maxwell spring's stretch, at the pull of ``chamber``."""
+        return volume - chamber.rest_volume - relaxed
 
-    def energy(self, pump, volume, x, omega, relaxed):
+    def energy(self, chamber: Chamber, volume, relaxed):
         """U_v (J)."""
-        e = pump.chamber_elastance(x, omega)
-        return 0.5 * self.stiffness_ratio * e * self.strain(pump, volume, x, omega, relaxed) ** 2
+        return (
+            0.5
+            * self.stiffness_ratio
+            * chamber.elastance
+            * self.strain(chamber, volume, relaxed) ** 2
+        )
 
-    def rest_state(self, pump, volume, x, omega):
+    def rest_state(self, chamber: Chamber, volume):
         """The relaxed dashpot volume s_v = V - V_eq(x) (m^3): the spring unstretched."""
-        return self.strain(pump, volume, x, omega, 0.0)
+        return self.strain(chamber, volume, 0.0)
 
-    def rate(self, pump, volume, x, omega, relaxed):
+    def rate(self, chamber: Chamber, volume, relaxed):
         """ds_v/dt (m^3/s)."""
-        return self.strain(pump, volume, x, omega, relaxed) / self.relaxation_time
+        return self.strain(chamber, volume, relaxed) / self.relaxation_time
 
 
 class PumpCircuit(eqx.Module):
@@ -154,9 +158,8 @@ class PumpCircuit(eqx.Module):
         if self.has_flow_state:
             y["flow"] = jnp.zeros_like(y["volume"])
         if self.viscoelasticity is not None:
-            y["relaxation"] = self.viscoelasticity.rest_state(
-                self.pump, y["volume"], self.actuation(0.0), self.omega
-            )
+            chamber = self.pump.chamber(self.actuation(0.0), self.omega)
+            y["relaxation"] = self.viscoelasticity.rest_state(chamber, y["volume"])
         return y
 
     def _algebraic_outflow(self, ya, dp):
@@ -170,25 +173,45 @@ class PumpCircuit(eqx.Module):
         r = jnp.zeros_like(dp) if r is None else r
         return 2.0 * dp / (r + jnp.sqrt(r**2 + 4.0 * k * jnp.abs(dp)))
 
-    def signals(self, t, y) -> dict:
-        """Everything observable at time t (SI): pull, pressures, flows, forces."""
+    def _hydraulics(self, t, y) -> dict:
+        """Pull, chamber law, pressures and flows at time t (SI): all the vector field needs."""
         x = self.actuation(t)
         volume = y["volume"]
         ya = y["afterload"]
-        p_pump = self.pump.pressure(volume, x, self.omega)
-        force = self.pump.force(volume, x, self.omega)
+        chamber = self.pump.chamber(x, self.omega)
+        p_pump = chamber.pressure(volume)
         if self.viscoelasticity is not None:
-            dp, df = jax.grad(self.viscoelasticity.energy, argnums=(1, 2))(
-                self.pump, volume, x, self.omega, y["relaxation"]
+            p_pump = p_pump + jax.grad(self.viscoelasticity.energy, argnums=1)(
+                chamber, volume, y["relaxation"]
             )
-            p_pump, force = p_pump + dp, force + df
         p_node = self.afterload.node_pressure(ya)
         q_out = y["flow"] if self.has_flow_state else self._algebraic_outflow(ya, p_pump - p_node)
-        out = {"pull": x, "pump_pressure": p_pump, "node_pressure": p_node, "outflow": q_out}
+        out = {
+            "pull": x,
+            "chamber": chamber,
+            "pump_pressure": p_pump,
+            "node_pressure": p_node,
+            "outflow": q_out,
+        }
         if self.preload is not None:
             p_pre = self.preload.pressure(y["preload"])
             out["preload_pressure"] = p_pre
             out["inflow"] = self.inlet_valve.flow(p_pre - p_pump)
+        return out
+
+    def signals(self, t, y) -> dict:
+        """Everything observable at time t (SI): pull, pressures, flows, forces."""
+        out = self._hydraulics(t, y)
+        del out["chamber"]
+        x, volume = out["pull"], y["volume"]
+        force = self.pump.force(volume, x, self.omega)
+        if self.viscoelasticity is not None:
+
+            def viscoelastic_energy(pull):
+                chamber = self.pump.chamber(pull, self.omega)
+                return self.viscoelasticity.energy(chamber, volume, y["relaxation"])
+
+            force = force + jax.grad(viscoelastic_energy)(x)
         out["shell_force"] = force
         if self.cable_friction is not None:
             force = force * self.cable_friction.factor(self.actuation.velocity(t))
@@ -196,7 +219,7 @@ class PumpCircuit(eqx.Module):
         return out
 
     def __call__(self, t, y, args=None) -> dict:
-        s = self.signals(t, y)
+        s = self._hydraulics(t, y)
         q_in = s.get("inflow", 0.0)
         dy = {
             "volume": q_in - s["outflow"],
@@ -205,9 +228,7 @@ class PumpCircuit(eqx.Module):
         if self.preload is not None:
             dy["preload"] = self.preload.rhs(y["preload"], q_in)
         if self.viscoelasticity is not None:
-            dy["relaxation"] = self.viscoelasticity.rate(
-                self.pump, y["volume"], s["pull"], self.omega, y["relaxation"]
-            )
+            dy["relaxation"] = self.viscoelasticity.rate(s["chamber"], y["volume"], y["relaxation"])
         if self.has_flow_state:
             ya, q = y["afterload"], y["flow"]
             drop = s["pump_pressure"] - s["node_pressure"]

@@ -70,6 +70,7 @@ from cardiosoft.units import mmHg
 
 __all__ = [
     "DEFAULT_ARTIFACT",
+    "Chamber",
     "Domain",
     "PumpSurrogate",
     "load",
@@ -107,6 +108,41 @@ BUCKLING_ONSET = (0.45, 0.15)
 (``fit.pipeline``) holds them here. Table I's jumps between Omega rows place the onset at
 Omega C of about 0.5; over the grid onset {0.35, ..., 0.6} x width {0.05, 0.1, 0.15, 0.2}
 these values gave the smallest leave-one-out error on Table I."""
+
+
+class Chamber(eqx.Module):
+    """The chamber law at one cable pull: what of U depends on the cavity volume V.
+
+    ``U_c(V) = (E / beta^2) (cosh(beta (V - V_eq)) - 1)`` (J), the term ``Phi`` of the module
+    docstring; :meth:`PumpSurrogate.chamber` builds it. The vector field of a simulation needs
+    only this (its pressure), so the zero-pressure law EF_0 is evaluated once per call.
+
+    - ``rest_volume``: V_eq, the cavity volume at zero pressure (m^3).
+    - ``elastance``: E, the stiffness at zero pressure (Pa/m^3).
+    - ``stiffening``: beta, how fast the chamber stiffens with distension (1/m^3).
+    """
+
+    rest_volume: jax.Array
+    elastance: jax.Array
+    stiffening: jax.Array
+
+    def energy(self, V) -> jax.Array:
+        """U_c (J) at cavity volume V (m^3)."""
+        beta = self.stiffening
+        return self.elastance / beta**2 * (jnp.cosh(beta * (V - self.rest_volume)) - 1.0)
+
+    def pressure(self, V) -> jax.Array:
+        """dU_c/dV (Pa), the chamber's elastic pressure: equal to dU/dV, as W does not hold V."""
+        return jax.grad(self.energy)(V)
+
+    def stiffness(self, V) -> jax.Array:
+        """d2U/dV2 = E cosh(beta (V - V_eq)) (Pa/m^3), positive everywhere."""
+        return self.elastance * jnp.cosh(self.stiffening * (V - self.rest_volume))
+
+    def volume(self, pressure) -> jax.Array:
+        """The unique V (m^3) at ``pressure`` (Pa): ``V_eq + asinh(beta P / E) / beta``."""
+        beta = self.stiffening
+        return self.rest_volume + jnp.arcsinh(beta * pressure / self.elastance) / beta
 
 
 class PumpSurrogate(eqx.Module):
@@ -176,10 +212,16 @@ class PumpSurrogate(eqx.Module):
         h = a * shortening + b * shortening**2 + folding
         return -jnp.expm1(-h)
 
+    def chamber(self, x, omega) -> Chamber:
+        """The chamber law at cable pull x (m): V_eq(x), E(x) and beta (:class:`Chamber`)."""
+        ef0 = self._ef_zero_pressure(x / self.cable_length(omega), omega)
+        # folding softens the chamber: E = E_u exp(-kappa EF_0)
+        elastance = jnp.exp(self.log_chamber_elastance - _softplus(self.fold_compliance) * ef0)
+        return Chamber(self.unloaded_volume * (1.0 - ef0), elastance, jnp.exp(self.log_stiffening))
+
     def zero_pressure_volume(self, x, omega) -> jax.Array:
         """V_eq(x; Omega) (m^3): the cavity volume at zero pressure for a cable pull x (m)."""
-        c = x / self.cable_length(omega)
-        return self.unloaded_volume * (1.0 - self._ef_zero_pressure(c, omega))
+        return self.chamber(x, omega).rest_volume
 
     # ------------------------------------------------------------------------- the potential
     def _buckling_shortening_ratio(self, c, omega):
@@ -206,25 +248,15 @@ class PumpSurrogate(eqx.Module):
 
     def chamber_elastance(self, x, omega):
         """E (Pa/m^3): chamber stiffness at zero pressure, softened as the shell folds."""
-        c = x / self.cable_length(omega)
-        soften = _softplus(self.fold_compliance) * self._ef_zero_pressure(c, omega)
-        return jnp.exp(self.log_chamber_elastance - soften)
-
-    def _stiffening(self):
-        """beta (1/m^3): how fast the chamber stiffens with distension."""
-        return jnp.exp(self.log_stiffening)
+        return self.chamber(x, omega).elastance
 
     def energy(self, V, x, omega) -> jax.Array:
         """U(V, x; Omega) (J): strain energy of the shell at cavity volume V (m^3), pull x (m)."""
-        s = V - self.zero_pressure_volume(x, omega)
-        e = self.chamber_elastance(x, omega)
-        beta = self._stiffening()
-        chamber = e / beta**2 * (jnp.cosh(beta * s) - 1.0)
-        return self._shell_energy(x, omega) + chamber
+        return self._shell_energy(x, omega) + self.chamber(x, omega).energy(V)
 
     def pressure(self, V, x, omega) -> jax.Array:
-        """Chamber elastic pressure dU/dV (Pa)."""
-        return jax.grad(self.energy, argnums=0)(V, x, omega)
+        """Chamber elastic pressure dU/dV (Pa), by autodiff of the V-dependent part of U."""
+        return self.chamber(x, omega).pressure(V)
 
     def force(self, V, x, omega) -> jax.Array:
         """Total cable force dU/dx (N), on all cables together."""
@@ -232,17 +264,14 @@ class PumpSurrogate(eqx.Module):
 
     def stiffness(self, V, x, omega) -> jax.Array:
         """Chamber stiffness d2U/dV2 (Pa/m^3), positive everywhere by construction."""
-        s = V - self.zero_pressure_volume(x, omega)
-        return self.chamber_elastance(x, omega) * jnp.cosh(self._stiffening() * s)
+        return self.chamber(x, omega).stiffness(V)
 
     def volume(self, pressure, x, omega) -> jax.Array:
         """The unique cavity volume (m^3) at chamber pressure ``pressure`` (Pa) and pull x (m).
 
         Closed form: ``V = V_eq + asinh(beta P / E) / beta``.
         """
-        e = self.chamber_elastance(x, omega)
-        beta = self._stiffening()
-        return self.zero_pressure_volume(x, omega) + jnp.arcsinh(beta * pressure / e) / beta
+        return self.chamber(x, omega).volume(pressure)
 
     def zero_pressure_force(self, x, omega) -> jax.Array:
         """Cable force (N) at zero chamber pressure: W'(x)."""
@@ -379,4 +408,3 @@ def load(path=None) -> PumpSurrogate:
         lambda a: jnp.asarray(a, dtype=float) if eqx.is_array(a) else a, skeleton
     )
     return eqx.tree_deserialise_leaves(weights, skeleton)
-

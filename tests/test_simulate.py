@@ -259,7 +259,7 @@ def test_dynamic_peak_force_and_efficiency_are_near_the_papers(bench):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="MODEL: dynamic peak force 54.4/73.6/88.5 N at 30 bpm against the paper's "
+    reason="MODEL: dynamic peak force 54.3/73.4/88.6 N at 30 bpm against the paper's "
     "54.4/84.2/93.3 N (Fig. 10(d)): the quasi-static force already rises too evenly with the "
     "afterload (python -m fit --report)",
 )
