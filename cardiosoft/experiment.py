@@ -8,6 +8,7 @@ fails is reported by name in its record; the others are unaffected.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import math
 
@@ -189,7 +190,8 @@ def _static_strokes(pump: PumpSurrogate, omegas, strokes, afterloads, k, frictio
 
 
 def _stack(trees):
-    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *trees)
+    """One batch from equal trees of concrete arrays (stacked by numpy: no eager XLA compiles)."""
+    return jax.tree_util.tree_map(lambda *xs: jnp.asarray(np.stack(xs)), *trees)
 
 
 def _shard(tree):
@@ -299,6 +301,14 @@ def sweep(
     return _run_members(scene, variants, beats, pump)
 
 
+def _solve_dynamic(scene: Scene, variants, beats, pump):
+    """The beats of every (label, scene variant, afterload), in one vmapped call."""
+    circuits = _shard(_stack([_circuit(v, pump, h) for _, v, h in variants]))
+    config = preset(scene.accuracy, stiff=scene.has("valves"))
+    max_beats, tol = (beats, 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
+    return _simulate(circuits, int(max_beats), tol, config)
+
+
 def _run_members(scene: Scene, variants, beats, pump) -> RunResult:
     """Solve every (label, scene variant, afterload) in one vmapped call."""
     if beats is not None:
@@ -307,7 +317,7 @@ def _run_members(scene: Scene, variants, beats, pump) -> RunResult:
     labels = [label for label, _, _ in variants]
     heads = [h for _, _, h in variants]
 
-    static = None
+    static_strokes = None
     if scene.afterload_type == "water_column":
         k = (
             column_stiffness(0.25 * math.pi * scene.column_diameter**2, RHO_WATER, G)
@@ -317,12 +327,13 @@ def _run_members(scene: Scene, variants, beats, pump) -> RunResult:
         friction = scene.cable_friction if scene.has("cable_friction") else 0.0
         omegas = jnp.asarray([v.omega for _, v, _ in variants])
         strokes = jnp.asarray([v.shortening for _, v, _ in variants]) * pump.cable_length(omegas)
-        static = [
-            np.asarray(a)
-            for a in _static_strokes(pump, omegas, strokes, jnp.asarray(heads), k, friction)
-        ]
+
+        def static_strokes():
+            out = _static_strokes(pump, omegas, strokes, jnp.asarray(heads), k, friction)
+            return [np.asarray(a) for a in out]
 
     if scene.static:
+        static = static_strokes()
         members = tuple(
             MemberResult(
                 label, h, True, "quasi-static", 0, 0.0, 0.0, _static_metrics(static, i, h), {}
@@ -331,10 +342,17 @@ def _run_members(scene: Scene, variants, beats, pump) -> RunResult:
         )
         return RunResult(scene, members)
 
-    circuits = _shard(_stack([_circuit(v, pump, h) for _, v, h in variants]))
-    config = preset(scene.accuracy, stiff=scene.has("valves"))
-    max_beats, tol = (beats, 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
-    out, signals, metrics = _simulate(circuits, int(max_beats), tol, config)
+    if static_strokes is None:
+        static, dynamic = None, _solve_dynamic(scene, variants, beats, pump)
+    else:
+        # Compiling the dynamic solve takes seconds; the quasi-static strokes compile on a second
+        # thread meanwhile (JAX traces and compiles thread-safely).
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            pending = pool.submit(static_strokes)
+            dynamic = _solve_dynamic(scene, variants, beats, pump)
+            static = pending.result()
+
+    out, signals, metrics = dynamic
     codes = np.asarray(out.result._value)
     members = []
     for i, (label, h) in enumerate(zip(labels, heads, strict=True)):

@@ -131,6 +131,7 @@ def arc_length(shell: Shell, omega, t) -> jax.Array:
     return 0.5 * t * jnp.sum(jnp.asarray(_GL_WEIGHTS) * _speed(shell, omega, s), -1)
 
 
+@jax.jit  # called eagerly when scenes are built: one compiled kernel, not ~30 eager ops
 def cable_length(shell: Shell, omega) -> jax.Array:
     """Rest length L(Omega) of one cable between base and apex (m), eq. (3)."""
     return arc_length(shell, omega, shell.t0)
