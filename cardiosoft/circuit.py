@@ -80,12 +80,8 @@ class ShellViscoelasticity(eqx.Module):
 
     def energy(self, chamber: Chamber, volume, relaxed):
         """U_v (J)."""
-        return (
-            0.5
-            * self.stiffness_ratio
-            * chamber.elastance
-            * self.strain(chamber, volume, relaxed) ** 2
-        )
+        stiffness = self.stiffness_ratio * chamber.elastance
+        return 0.5 * stiffness * self.strain(chamber, volume, relaxed) ** 2
 
     def rest_state(self, chamber: Chamber, volume):
         """The relaxed dashpot volume s_v = V - V_eq(x) (m^3): the spring unstretched."""
