@@ -200,14 +200,19 @@ class PumpCircuit(eqx.Module):
         out = self._hydraulics(t, y)
         del out["chamber"]
         x, volume = out["pull"], y["volume"]
-        force = self.pump.force(volume, x, self.omega)
-        if self.viscoelasticity is not None:
 
-            def viscoelastic_energy(pull):
-                chamber = self.pump.chamber(pull, self.omega)
-                return self.viscoelasticity.energy(chamber, volume, y["relaxation"])
+        def volume_energy(pull):
+            """The chamber's energy, and the viscoelastic branch's, at this volume (J).
 
-            force = force + jax.grad(viscoelastic_energy)(x)
+            With W'(x) this gives the shell's force dU/dx, the chamber law evaluated once.
+            """
+            chamber = self.pump.chamber(pull, self.omega)
+            energy = chamber.energy(volume)
+            if self.viscoelasticity is not None:
+                energy = energy + self.viscoelasticity.energy(chamber, volume, y["relaxation"])
+            return energy
+
+        force = self.pump.zero_pressure_force(x, self.omega) + jax.grad(volume_energy)(x)
         out["shell_force"] = force
         if self.cable_friction is not None:
             force = force * self.cable_friction.factor(self.actuation.velocity(t))
