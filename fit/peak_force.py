@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import equinox as eqx
 import jax
@@ -51,7 +52,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from cardiosoft.pump import Chamber
+if TYPE_CHECKING:
+    from cardiosoft.pump import Chamber
 
 N_KNOTS = 24
 N_POINTS = 241
@@ -92,6 +94,8 @@ class FreeFormPump(eqx.Module):
         return jnp.interp(x, self.knots, jnp.broadcast_to(values, (N_KNOTS,)))
 
     def _chamber(self, x) -> Chamber:
+        from cardiosoft.pump import Chamber  # lazily, like every entry point: after x64 is on
+
         h = self._integral(jax.nn.softplus(self.ejection_rate) / self.stroke, x)
         return Chamber(
             self.unloaded_volume * jnp.exp(-h),
