@@ -4,41 +4,54 @@ Efficient Soft Pump for an Artificial Heart Ventricle Simulator").
 
 SI units inside (m, m^3, Pa, N, s); see :mod:`cardiosoft.units` for conversions. float64 is
 recommended (switch on JAX's 64-bit mode in your script, as the README shows) and is what the
-CLIs, notebooks and tests use; the library never switches it on by itself.
+CLIs, notebooks and tests use; the library never switches it on by itself, and no module builds
+a JAX array when it is imported, so the switch may come after ``import cardiosoft``.
 
-The public names below are imported on first use, so that ``python -m cardiosoft.<module>`` runs
-a module that the package itself has not imported yet, and ``import cardiosoft`` stays cheap.
+The command-line modules (``python -m cardiosoft.simulate``, ``python -m cardiosoft.geometry``)
+are not imported here, so that running one does not find it imported already.
 """
-
-import importlib
 
 __version__ = "0.1.0"
 
-_EXPORTS = {
-    "units": "cardiosoft.units",
-    "Shell": "cardiosoft.geometry",
-    "apex_motion": "cardiosoft.geometry",
-    "cavity_volume": "cardiosoft.geometry",
-    "PumpSurrogate": "cardiosoft.pump",
-    "load_pump": "cardiosoft.pump",
-    "load_scene": "cardiosoft.scene",
-    "run": "cardiosoft.experiment",
-    "sweep": "cardiosoft.experiment",
-}
-_RENAMED = {"load_pump": "load"}
+# --- the public API (re-exported; ``as`` marks each name as exported) -----------------------
+from cardiosoft import units as units
+from cardiosoft.batch import BeatSolution as BeatSolution
+from cardiosoft.batch import StaticSolution as StaticSolution
+from cardiosoft.batch import scene_circuit as scene_circuit
+from cardiosoft.batch import solve_beats as solve_beats
+from cardiosoft.batch import solve_static as solve_static
+from cardiosoft.experiment import run as run
+from cardiosoft.experiment import sweep as sweep
+from cardiosoft.geometry import Shell as Shell
+from cardiosoft.geometry import apex_motion as apex_motion
+from cardiosoft.geometry import cavity_volume as cavity_volume
+from cardiosoft.pump import PumpSurrogate as PumpSurrogate
+from cardiosoft.pump import load as load_pump
+from cardiosoft.results import RunResult as RunResult
+from cardiosoft.results import summary_records as summary_records
+from cardiosoft.scene import load_scene as load_scene
+from cardiosoft.solve import SolverConfig as SolverConfig
+from cardiosoft.solve import preset as preset
 
-__all__ = sorted(_EXPORTS)
+# --- end of the public API --------------------------------------------------------------------
 
-
-def __getattr__(name):
-    if name in _EXPORTS:
-        module = importlib.import_module(_EXPORTS[name])
-        value = (module if module.__name__.endswith(name)
-                 else getattr(module, _RENAMED.get(name, name)))
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'cardiosoft' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted([*globals(), *_EXPORTS])
+__all__ = [
+    "BeatSolution",
+    "PumpSurrogate",
+    "RunResult",
+    "Shell",
+    "SolverConfig",
+    "StaticSolution",
+    "apex_motion",
+    "cavity_volume",
+    "load_pump",
+    "load_scene",
+    "preset",
+    "run",
+    "scene_circuit",
+    "solve_beats",
+    "solve_static",
+    "summary_records",
+    "sweep",
+    "units",
+]

@@ -1,6 +1,7 @@
 """The paper's numbers as validated CSV files, and a strict loader for files of the same kinds.
 
-Four kinds of file live in ``fit/data/`` (schema and conventions in ``fit/data/README.md``):
+Four kinds of file live in ``fit/data/`` (schema and conventions in ``fit/data/README.md``),
+shipped inside the package as ``cardiosoft/_paper_data`` (:func:`default_root`):
 
 - ``table1_fem``: FEM sweep of EF (and folds) over Omega x C at zero pressure (Table I);
 - ``table2_experiment``: experimental EF, folds and FEM error (Table II, held out for validation);
@@ -24,6 +25,7 @@ import math
 import types
 from collections.abc import Mapping
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +40,6 @@ __all__ = [
     "infer_kind",
     "load",
     "load_paper_data",
-    "sha256",
 ]
 
 
@@ -288,15 +289,6 @@ class PaperData:
         return {d.path.name: d.sha256 for d in self}
 
 
-def sha256(path) -> str:
-    """Hex SHA-256 of the file's bytes (what the fitted model card records)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 16), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def infer_kind(path) -> str:
     """The kind whose name the file's stem equals or starts with (followed by ``_`` or ``-``)."""
     stem = Path(path).stem
@@ -311,12 +303,20 @@ def infer_kind(path) -> str:
 
 
 def default_root() -> Path:
-    """``fit/data`` of the repository next to the package (an editable or source checkout)."""
+    """The folder of the shipped paper data, after an editable or a regular install.
+
+    A regular install ships ``fit/data`` as the package data ``cardiosoft/_paper_data``; an
+    editable install or a source checkout reads ``fit/data`` of the repository itself.
+    """
+    packaged = resources.files("cardiosoft") / "_paper_data"
+    if packaged.is_dir():
+        return Path(str(packaged))
     root = Path(__file__).resolve().parent.parent / "fit" / "data"
     if not root.is_dir():
         raise FileNotFoundError(
-            f"no fit/data directory next to the package (looked for {root}); pass root=... "
-            f"pointing at a directory with {sorted(PAPER_FILES.values())}"
+            f"no paper data found: expected the package data cardiosoft/_paper_data or {root} "
+            f"in a source checkout; pass root=... pointing at a directory with "
+            f"{sorted(PAPER_FILES.values())}"
         )
     return root
 

@@ -69,7 +69,9 @@ def beat_metrics(ts, volume, signals, n_pull: int, period, reference_pressure) -
         stroke_volume=sv,
         ejection_fraction=sv / edv,
         cardiac_output=sv / period,
-        peak_force=jnp.max(force),
+        # the largest sample picked by index, not jnp.max: measured, the tangent of jnp.max
+        # inside the beat loop came out 0 under a vmap of jacfwd (the index's does not)
+        peak_force=force[jnp.argmax(force)],
         mech_work=mech,
         reference_pressure=reference_pressure,
         hydraulic_work_paper=h_paper,

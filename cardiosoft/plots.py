@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cardiosoft._cli import atomic_path
+from cardiosoft.files import atomic_path
 
 FIGURE_FORMATS = ("png", "pdf", "svg")
 

@@ -64,7 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cardiosoft._validate import check_range
-from cardiosoft.datasets import sha256
+from cardiosoft.files import atomic_path, sha256
 from cardiosoft.geometry import Shell, cable_length, cavity_volume
 from cardiosoft.units import mmHg
 
@@ -158,7 +158,7 @@ class PumpSurrogate(eqx.Module):
     are pure functions for use inside ``jit``/``vmap``/``grad``.
     """
 
-    shell: Shell = Shell()
+    shell: Shell = eqx.field(default_factory=Shell)
     # zero-pressure volume law, EF_0(C, Omega)
     ef_linear: jax.Array = eqx.field(converter=jnp.asarray, default=(0.0, 0.4))
     ef_quadratic: jax.Array = eqx.field(converter=jnp.asarray, default=(1.4, 1.4))
@@ -350,8 +350,6 @@ def save(model: PumpSurrogate, path, card: dict) -> None:
     The card gets the format version and the sha256 of the weights file. Both files are written
     whole (temporary file + rename).
     """
-    from cardiosoft._cli import atomic_path
-
     path = Path(path).with_suffix(".eqx")
     with atomic_path(path) as tmp:
         eqx.tree_serialise_leaves(tmp, model)

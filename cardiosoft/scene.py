@@ -28,10 +28,12 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
+import jax
+
 from cardiosoft.pump import Domain
 from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
 
-__all__ = ["EFFECTS", "SCENE_NAMES", "Scene", "load_scene"]
+__all__ = ["EFFECTS", "RANGES", "SCENE_NAMES", "Scene", "load_scene"]
 
 EFFECTS = {
     "water_column": (
@@ -166,6 +168,11 @@ _NUMBERS = (
     _Number("steady_tol", "solve.steady_tol", "ml or mmHg", 0.0, 10.0, default=0.01),
 )
 # fmt: on
+RANGES: dict[str, tuple[float, float]] = {
+    spec.field: (spec.lo, spec.hi) for spec in _NUMBERS if spec.index is None
+}
+"""Allowed range of each scalar number of a scene, in its user unit (:attr:`_Number.unit`):
+``RANGES["bpm"]`` is (0, 300) bpm, ``RANGES["afterloads"]`` (0, 150) mmHg."""
 # Text keys: (field, "section.key", allowed values, default, when).
 _CHOICES = (
     ("shape", "actuation.shape", SHAPES, "linear", "always"),
@@ -335,6 +342,8 @@ def _validated(scene: Scene) -> Scene:
         value = value[spec.index] if spec.index is not None else value
         listed = isinstance(value, tuple)
         for i, v in enumerate(value if listed else (value,)):
+            if isinstance(v, jax.core.Tracer):
+                continue  # a value being differentiated: checked where it entered
             u = v / spec.scale
             inside = (
                 math.isfinite(u)

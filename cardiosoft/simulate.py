@@ -24,6 +24,8 @@ OUTPUT_FILES = ("summary.json", "traces.csv", "figure.png")
 
 
 def _parser() -> argparse.ArgumentParser:
+    from cardiosoft.solve import ACCURACY_PRESETS
+
     p = argparse.ArgumentParser(
         prog="python -m cardiosoft.simulate",
         description="Simulate the cable-driven soft pump beating against an afterload.",
@@ -47,7 +49,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--beats", type=int, help="run exactly this many beats (default: until steady)")
     p.add_argument(
         "--accuracy",
-        choices=("fast", "default", "reference"),
+        choices=ACCURACY_PRESETS,
         help="solver preset (default: the scene's)",
     )
     p.add_argument(
@@ -201,9 +203,11 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from cardiosoft._cli import fail, refuse_overwrite
+    from cardiosoft._cli import fail
     from cardiosoft._validate import check_range
-    from cardiosoft.experiment import configure, run, summary_records
+    from cardiosoft.experiment import configure, run
+    from cardiosoft.files import refuse_overwrite
+    from cardiosoft.results import summary_records
 
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     try:

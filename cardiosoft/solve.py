@@ -12,6 +12,9 @@ orders of magnitude, so for volumes ``atol`` rather than ``rtol`` usually sets t
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import diffrax
 import equinox as eqx
 import jax
@@ -22,6 +25,7 @@ from cardiosoft.circulation import inlet_pressure
 from cardiosoft.units import ml, mmHg
 
 __all__ = [
+    "ACCURACY_PRESETS",
     "PERIODIC_SCALES",
     "PRESETS",
     "Beats",
@@ -43,6 +47,11 @@ class SolverConfig(eqx.Module):
     - ``pcoeff``, ``icoeff``: PID coefficients; (0, 1) is the plain I controller.
     - ``max_steps`` (static): bound on the number of steps (sizes the checkpoint memory).
     - ``dt0``: first step (s); None picks it automatically.
+    - ``fixed_steps`` (static): None for error control (the PID controller), or a number of
+      equal steps over the solve's interval, without error control (still cut at ``jump_ts``).
+      For checking derivatives against finite differences: with equal steps the discretisation
+      is the same on both sides of the difference, so the two agree to the difference's own
+      truncation error.
     - ``adjoint`` (static): diffrax adjoint; the default checkpointed one for reverse mode,
       ``diffrax.ForwardMode()`` for ``jax.jvp``/``jacfwd`` (least-squares fitting).
     """
@@ -54,46 +63,42 @@ class SolverConfig(eqx.Module):
     icoeff: jax.Array = eqx.field(converter=jnp.asarray, default=1.0)
     max_steps: int = eqx.field(static=True, default=16384)
     dt0: float | None = None
+    fixed_steps: int | None = eqx.field(static=True, default=None)
     adjoint: diffrax.AbstractAdjoint = eqx.field(
         static=True, default_factory=diffrax.RecursiveCheckpointAdjoint
     )
 
 
-PRESETS: dict[str, SolverConfig] = {
-    "fast": SolverConfig(diffrax.Tsit5(), rtol=1e-4, atol=1e-8),
-    "default": SolverConfig(diffrax.Tsit5(), rtol=1e-6, atol=1e-9),
-    "reference": SolverConfig(diffrax.Tsit5(), rtol=1e-10, atol=1e-13, max_steps=65536),
+PRESETS: dict[str, dict] = {
+    "fast": dict(rtol=1e-4, atol=1e-8),
+    "default": dict(rtol=1e-6, atol=1e-9),
+    "reference": dict(rtol=1e-10, atol=1e-13, max_steps=65536),
 }
-"""Named non-stiff configurations; see :func:`preset`.
+"""Named non-stiff configurations, as :class:`SolverConfig` arguments with the ``Tsit5`` solver;
+:func:`preset` builds them (plain numbers here: no JAX array is built at import time, so float64
+can be switched on after ``import cardiosoft``).
 
 "reference" uses Tsit5, not Dopri8: output at ``ts`` is interpolated, and diffrax's Dopri8
 interpolant was measured 300x less accurate there (relative error 8e-9 against 3e-11 for Tsit5
 on an RC decay at rtol 1e-10), although Dopri8 is more accurate at its own steps.
 """
 
+ACCURACY_PRESETS: tuple[str, ...] = tuple(PRESETS)
+"""The names of the presets, ``("fast", "default", "reference")``: the accuracy a scene asks for."""
+
 
 def preset(name: str, stiff: bool = False) -> SolverConfig:
-    """The named configuration (``"fast"``, ``"default"``, ``"reference"``).
+    """The named configuration (``"fast"``, ``"default"``, ``"reference"``), built anew.
 
     With ``stiff=True`` the solver is ``Kvaerno5`` with a Newton root finder at the controller's
     tolerances and the PID coefficients are (0.3, 0.4).
     """
     if name not in PRESETS:
         raise ValueError(f"solver preset {name!r} is not one of {', '.join(PRESETS)}")
-    config = PRESETS[name]
     if stiff:
         solver = diffrax.Kvaerno5(root_finder=diffrax.with_stepsize_controller_tols(optx.Newton)())
-        config = SolverConfig(
-            solver,
-            config.rtol,
-            config.atol,
-            0.3,
-            0.4,
-            config.max_steps,
-            config.dt0,
-            config.adjoint,
-        )
-    return config
+        return SolverConfig(solver, pcoeff=0.3, icoeff=0.4, **PRESETS[name])
+    return SolverConfig(diffrax.Tsit5(), **PRESETS[name])
 
 
 def integrate(
@@ -115,9 +120,16 @@ def integrate(
     **Returns:** the ``diffrax.Solution``; never throws, check ``sol.result``.
     """
     config = preset("default") if config is None else config
-    controller = diffrax.PIDController(
-        rtol=config.rtol, atol=config.atol, pcoeff=config.pcoeff, icoeff=config.icoeff
-    )
+    dt0 = config.dt0
+    if config.fixed_steps is None:
+        controller = diffrax.PIDController(
+            rtol=config.rtol, atol=config.atol, pcoeff=config.pcoeff, icoeff=config.icoeff
+        )
+    else:
+        # equal steps that may still be cut at jump_ts (ClipStepSizeController needs an adaptive
+        # controller): tolerances no error can reach, every step as long as dtmax allows
+        dt0 = (jnp.asarray(t1) - jnp.asarray(t0)) / config.fixed_steps
+        controller = diffrax.PIDController(rtol=1e30, atol=1e30, dtmax=dt0)
     if jump_ts is not None:
         controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
     ftype = jnp.result_type(float)
@@ -131,7 +143,7 @@ def integrate(
         config.solver,
         jnp.asarray(t0, dtype=ftype),
         jnp.asarray(t1, dtype=ftype),
-        config.dt0,
+        dt0,
         y0,
         args=args,
         saveat=saveat,
@@ -230,9 +242,10 @@ class Beats(eqx.Module):
     """Result of :func:`periodic_beats` (SI)."""
 
     ts: jax.Array
-    """Save times of the last beat, from 0 to the period (s)."""
-    ys: dict
-    """State at ``ts`` during the last beat (leaves with a leading time axis)."""
+    """Save times of a beat, from 0 to the period (s)."""
+    observed: Any
+    """What ``observe`` returned for the last beat: by default the state at ``ts`` (leaves with
+    a leading time axis)."""
     y0: dict
     """State at the start of the last beat."""
     beats: jax.Array
@@ -264,6 +277,7 @@ def periodic_beats(
     max_beats: int,
     tol,
     config: SolverConfig | None = None,
+    observe: Callable[[jax.Array, dict], Any] | None = None,
 ) -> Beats:
     """Integrate beat after beat until the cycle-to-cycle change is below ``tol``.
 
@@ -277,14 +291,18 @@ def periodic_beats(
     - ``max_beats`` (static): the most beats; with ``tol = 0`` exactly that many are run.
     - ``tol``: steady-state tolerance in the units of :data:`PERIODIC_SCALES`.
     - ``config``: a :class:`SolverConfig`.
+    - ``observe``: ``(ts, ys) -> pytree``, applied to each beat's saved states; only its value
+      for the last beat is kept (:attr:`Beats.observed`). ``None`` keeps the states themselves.
+      A reduction (the beat's metrics) keeps the loop's carry small: nothing of the size of
+      ``ts`` need survive a beat.
 
     Runs in one ``lax.while_loop``: jit it once, ``vmap`` it over parameters, and every element
     stops at its own steady state (the batch runs until the slowest is done). A failed beat
     stops its element and is reported in ``result``; nothing is raised.
     """
     config = preset("default") if config is None else config
+    observe = (lambda ts, ys: ys) if observe is None else observe
     ftype = jnp.result_type(float)
-    n_save = ts.shape[0]
     v_ref = total_volume(y0)
 
     def one_beat(y):
@@ -309,24 +327,28 @@ def periodic_beats(
         y_end = jax.tree_util.tree_map(lambda a: a[-1], ys)
         residual = _cycle_residual(y, y_end)
         drift = jnp.maximum(drift, jnp.abs(total_volume(y_end) - v_ref) / jnp.abs(v_ref))
-        return y_end, ys, beats + 1, residual, drift, result, (steps, y)
+        return y_end, observe(ts, ys), beats + 1, residual, drift, result, (steps, y)
 
     def cond(carry):
         _, _, beats, residual, _, result, _ = carry
         ok = result == diffrax.RESULTS.successful
         return ok & (beats < max_beats) & ((beats == 0) | (residual > tol))
 
-    ys0 = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_save, *jnp.shape(a))), y0)
+    # the carry's slot for the observation, shaped as a beat at rest would give it
+    ys_rest = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (*ts.shape, *jnp.shape(a))), y0)
+    observed0 = jax.tree_util.tree_map(
+        lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(observe, ts, ys_rest)
+    )
     carry = (
         y0,
-        ys0,
+        observed0,
         jnp.array(0),
         jnp.array(jnp.inf, ftype),
         jnp.zeros((), ftype),
         diffrax.RESULTS.successful,
         (jnp.array(0), y0),
     )
-    _, ys, beats, residual, drift, result, (steps, y_start) = jax.lax.while_loop(
+    _, observed, beats, residual, drift, result, (steps, y_start) = jax.lax.while_loop(
         cond, body, carry
     )
-    return Beats(ts, ys, y_start, beats, residual, drift, result, steps)
+    return Beats(ts, observed, y_start, beats, residual, drift, result, steps)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -31,6 +32,7 @@ __all__ = [
     "column_stiffness",
     "implicit_scalar_root",
     "quasi_static_stroke",
+    "static_strokes",
 ]
 
 NEWTON_STEPS = 40
@@ -126,3 +128,25 @@ def quasi_static_stroke(
         mechanical_work=mech,
         hydraulic_work=hydraulic,
     )
+
+
+@eqx.filter_jit
+def static_strokes(pump: PumpSurrogate, omega, shortening, afterload, k=0.0, friction=0.0):
+    """Quasi-static strokes of a batch (leading axis) as the bench's load cell sees them.
+
+    ``omega``, ``shortening`` (C) and ``afterload`` (column head, Pa) are 1-D arrays of equal
+    length; ``k`` the column stiffness (Pa/m^3); ``friction`` the capstan exponent mu theta of
+    :class:`~cardiosoft.circuit.CableFriction` (0 without friction): a slow pull meets the
+    factor ``exp(mu theta)`` on the force and so on the work.
+
+    **Returns:** ``(stroke_volume m^3, peak_force N, mech_work J, efficiency)``, each per member,
+    the efficiency the paper's ``P_a SV / M``.
+    """
+
+    def one(o, c, p):
+        return quasi_static_stroke(pump, o, c * pump.cable_length(o), p, k)
+
+    out = jax.vmap(one)(omega, shortening, afterload)
+    factor = jnp.exp(friction)
+    force, work = factor * out.peak_force, factor * out.mechanical_work
+    return out.stroke_volume, force, work, afterload * out.stroke_volume / work

@@ -21,7 +21,7 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
 
     from cardiosoft import datasets
-    from cardiosoft._cli import fail, refuse_overwrite
+    from cardiosoft.files import refuse_overwrite
     from cardiosoft.pump import DEFAULT_ARTIFACT, load, load_card
     from fit import fitting, report
 
@@ -60,7 +60,8 @@ def main(argv=None) -> int:
         out = Path(args.out).with_suffix(".eqx")
         refuse_overwrite(out, args.force)
     except (ValueError, FileNotFoundError) as err:
-        return fail(err)
+        print(f"error: {err}", file=sys.stderr)
+        return 2
 
     start = time.perf_counter()
     model, rig, card = fitting.fit(data, progress=lambda msg: print(msg, file=sys.stderr))

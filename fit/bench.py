@@ -28,7 +28,6 @@ import sys
 import time
 
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -47,7 +46,7 @@ def calibrate(progress=print, peak_forces: bool = False):
     ``peak_forces``: fit the paper's peak forces too (module docstring).
     """
     from cardiosoft import datasets
-    from cardiosoft.experiment import _circuit, _simulate, _stack
+    from cardiosoft.batch import solve_beats
     from cardiosoft.pump import load
     from cardiosoft.scene import load_scene
     from cardiosoft.solve import SolverConfig
@@ -61,25 +60,18 @@ def calibrate(progress=print, peak_forces: bool = False):
     work_target = heads * sv_target / jnp.asarray(bench["efficiency"])
     force_target = jnp.asarray(bench["peak_force_N"])
     pump = load()
-    circuits = _stack([_circuit(scene, pump, h) for h in heads])
     config = SolverConfig(diffrax.Tsit5(), rtol=1e-7, atol=1e-12, adjoint=diffrax.ForwardMode())
 
-    def with_rig(log_rig):
-        length, diameter, ratio, tau = (jnp.full(len(heads), v) for v in jnp.exp(log_rig))
-        return eqx.tree_at(
-            lambda c: (
-                c.afterload.tube.length,
-                c.afterload.tube.diameter,
-                c.viscoelasticity.stiffness_ratio,
-                c.viscoelasticity.relaxation_time,
-            ),
-            circuits,
-            (length, diameter, ratio, tau),
-        )
-
     def outputs(log_rig):
-        _, _, metrics = _simulate(with_rig(log_rig), scene.max_beats, scene.steady_tol, config)
-        return metrics.stroke_volume, metrics.mech_work, metrics.peak_force
+        length, diameter, ratio, tau = jnp.exp(log_rig)
+        rig = scene.replace(
+            tube_length=length,
+            tube_diameter=diameter,
+            viscoelastic_ratio=ratio,
+            relaxation_time=tau,
+        )
+        out = solve_beats(rig, afterload=heads, save="metrics", pump=pump, config=config)
+        return out.metrics.stroke_volume, out.metrics.mech_work, out.metrics.peak_force
 
     def residuals(log_rig):
         sv, work, force = outputs(log_rig)

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from cardiosoft import datasets
+from cardiosoft.files import sha256
 from cardiosoft.pump import load, load_card
 from fit import fitting, pipeline, report  # the repository root is on pytest's pythonpath
 
@@ -120,10 +121,10 @@ def test_card_records_the_data_it_was_fitted_on(card):
     csvs = sorted(p.name for p in data_dir.glob("*.csv"))
     assert sorted(card["data_sha256"]) == csvs
     for name, digest in card["data_sha256"].items():
-        assert datasets.sha256(data_dir / name) == digest, name
+        assert sha256(data_dir / name) == digest, name
     # and the weights next to it are the ones the card names
     weights = REPO / "surrogates" / card["weights_file"]
-    assert datasets.sha256(weights) == card["weights_sha256"]
+    assert sha256(weights) == card["weights_sha256"]
     assert card["held_out"] == ["table2_experiment.csv"]
     assert card["format_version"] == 2
 

@@ -17,8 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cardiosoft import experiment
-from cardiosoft.experiment import build_circuit, run
+from cardiosoft import batch
+from cardiosoft.batch import scene_circuit
+from cardiosoft.experiment import run
 from cardiosoft.pump import load, load_card
 from cardiosoft.scene import EFFECTS, SCENE_NAMES, Scene, load_scene
 from cardiosoft.static import quasi_static_stroke
@@ -268,7 +269,7 @@ def count_eqns(jaxpr, primitive=None):
 
 
 def bench_circuit(effects):
-    return build_circuit(load_scene("bench-dynamic").replace(effects=tuple(effects)))
+    return scene_circuit(load_scene("bench-dynamic").replace(effects=tuple(effects)), load())
 
 
 def vector_field(effects):
@@ -344,7 +345,7 @@ def test_without_viscoelasticity_the_relaxation_is_not_a_state():
 
 def test_an_undetermined_outflow_is_refused():
     with pytest.raises(ValueError, match="undetermined"):
-        build_circuit(load_scene("bench-dynamic").replace(effects=("column_rise",)))
+        scene_circuit(load_scene("bench-dynamic").replace(effects=("column_rise",)), load())
 
 
 @pytest.fixture(scope="module")
@@ -392,14 +393,14 @@ def test_calibrated_viscoelasticity_is_not_negligible(effect_runs):
 @pytest.fixture(scope="module")
 def static_run():
     calls = []
-    original = experiment.periodic_beats
+    original = batch.periodic_beats
 
     def spy(*args, **kwargs):
         calls.append(1)
         return original(*args, **kwargs)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(experiment, "periodic_beats", spy)
+        mp.setattr(batch, "periodic_beats", spy)
         result = run("bench-static")
     return result, calls
 

@@ -13,17 +13,18 @@ import dataclasses
 import math
 
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.integrate import simpson, trapezoid
 
-from cardiosoft import experiment
+from cardiosoft import batch, static
+from cardiosoft.batch import PULL_SAMPLES, scene_circuit, solve_beats
 from cardiosoft.datasets import load_paper_data
-from cardiosoft.experiment import build_circuit, run, summary_records
+from cardiosoft.experiment import run
 from cardiosoft.pump import load
+from cardiosoft.results import RunResult, member_results, summary_records
 from cardiosoft.scene import load_scene
 from cardiosoft.solve import SolverConfig, integrate, preset
 
@@ -71,7 +72,7 @@ def test_bench_pump_plus_column_volume_is_constant_within_the_beat(twenty_beats)
     """Independent of volume_drift (beat ends only): every sample of the last beat."""
     result = twenty_beats["bench-dynamic"]
     for m in result.members:
-        v0 = float(build_circuit(result.scene, afterload=m.afterload).init()["volume"])
+        v0 = float(scene_circuit(result.scene, load(), m.afterload).init()["volume"])
         total = m.traces["volume"] + m.traces["column_volume"]
         np.testing.assert_allclose(total, v0, rtol=1e-9)
 
@@ -166,7 +167,7 @@ def test_one_more_beat_from_the_returned_state_repeats_it(bench):
     period = 60.0 / scene.bpm
     for m in bench.members:
         assert m.traces["time"][-1] == pytest.approx(period)
-        circuit = build_circuit(scene, afterload=m.afterload)
+        circuit = scene_circuit(scene, load(), m.afterload)
         y_end = end_state(m)
         assert set(y_end) == set(circuit.init())
         sol = integrate(
@@ -291,7 +292,7 @@ def test_metrics_agree_with_the_traces(bench):
         assert x["cardiac_output"] == pytest.approx(sv * scene.bpm / 60.0, rel=1e-12)
 
         pull = pull_phase(bench, m)
-        assert pull.sum() == experiment.N_PULL_SAMPLES
+        assert pull.sum() == PULL_SAMPLES
         assert np.all(np.diff(tr["pull"][pull]) > 0)
         work = simpson(tr["cable_force"][pull], x=tr["pull"][pull])
         assert x["mech_work"] == pytest.approx(work, rel=1e-3)
@@ -318,21 +319,15 @@ def test_summary_records_are_in_user_units(bench):
 # ---------------------------------------------------------------------------- failures
 
 
-def test_a_failing_member_is_reported_by_name_and_spares_the_others(bench, monkeypatch):
-    """One member's tube length is NaN: its solve exhausts max_steps; run() must not raise."""
-    original = experiment._circuit
-
-    def poisoned(scene, pump, head):
-        circuit = original(scene, pump, head)
-        if head is not None and abs(head - 60 * MMHG) < 1e-6:
-            circuit = eqx.tree_at(lambda c: c.afterload.tube.length, circuit, jnp.asarray(np.nan))
-        return circuit
-
-    monkeypatch.setattr(experiment, "_circuit", poisoned)
-    result = run("bench-dynamic")
-    assert not result.ok
-    by_label = {m.label: m for m in result.members}
-    assert sorted(by_label) == ["30 mmHg", "60 mmHg", "90 mmHg"]
+def test_a_failing_member_is_reported_by_name_and_spares_the_others(bench):
+    """One member's column head is NaN (traced, past the eager checks): its solve exhausts
+    max_steps; the batch must not raise and the other members must not notice."""
+    scene = bench.scene
+    heads = jnp.asarray(scene.afterloads).at[1].set(jnp.nan)
+    out = jax.jit(lambda h: solve_beats(scene, afterload=h))(heads)
+    labels = ["30 mmHg", "60 mmHg", "90 mmHg"]
+    members = member_results(labels, out, None)
+    by_label = {m.label: m for m in members}
     failed = by_label["60 mmHg"]
     assert not failed.ok
     assert failed.message.startswith("solver failed in beat 1")
@@ -345,13 +340,13 @@ def test_a_failing_member_is_reported_by_name_and_spares_the_others(bench, monke
         assert good.metrics["stroke_volume"] == pytest.approx(
             reference.metrics["stroke_volume"], rel=1e-9
         )
-    records = summary_records(result)  # reporting a failure does not raise either
+    records = summary_records(RunResult(scene, members))  # reporting a failure does not raise
     assert [r["ok"] for r in records] == [True, False, True]
 
 
 @pytest.mark.slow
 def test_every_member_fails_with_a_tiny_step_budget(monkeypatch):
-    monkeypatch.setattr(experiment, "preset", lambda name, stiff=False: SolverConfig(max_steps=5))
+    monkeypatch.setattr(batch, "preset", lambda name, stiff=False: SolverConfig(max_steps=5))
     result = run("bench-dynamic", accuracy="fast", beats=2)
     assert len(result.members) == 3
     for m in result.members:
@@ -366,14 +361,14 @@ def test_every_member_fails_with_a_tiny_step_budget(monkeypatch):
 def test_new_parameter_values_do_not_recompile(bench, monkeypatch):
     """Afterloads, bpm, Omega, C and the tolerances of a preset are data, not structure."""
     traces = {"periodic_beats": 0, "quasi_static_stroke": 0}
-    for name in traces:
-        original = getattr(experiment, name)
+    for module, name in ((batch, "periodic_beats"), (static, "quasi_static_stroke")):
+        original = getattr(module, name)
 
         def spy(*args, _name=name, _original=original, **kwargs):
             traces[_name] += 1
             return _original(*args, **kwargs)
 
-        monkeypatch.setattr(experiment, name, spy)
+        monkeypatch.setattr(module, name, spy)
     first = run("bench-dynamic")  # compiled already by `bench` (or now, once)
     assert all(n <= 1 for n in traces.values())
     seen = dict(traces)
@@ -400,24 +395,26 @@ def test_new_parameter_values_do_not_recompile(bench, monkeypatch):
 
 
 def test_stroke_volume_tangent_wrt_tube_length_matches_finite_differences():
+    """Any number of the scene is a leaf of the public solve: d SV / d tube length, forward mode."""
     scene = load_scene("bench-dynamic")
-    circuits = experiment._stack([build_circuit(scene, load(), scene.afterloads[1])])
-    ref = preset("reference")
-    config = dataclasses.replace(ref, adjoint=diffrax.ForwardMode())
+    config = dataclasses.replace(preset("reference"), adjoint=diffrax.ForwardMode())
+    head = scene.afterloads[1]
 
-    @eqx.filter_jit
+    @jax.jit
     def sv_and_tangent(length):
         def stroke_volume(length):
-            c = eqx.tree_at(lambda c: c.afterload.tube.length, circuits, length)
-            out, _, metrics = experiment._simulate(c, 2, 0.0, config)
-            return metrics.stroke_volume[0], out.result._value[0]
+            out = solve_beats(
+                scene.replace(tube_length=length), afterload=head, beats=2, config=config,
+                save="metrics",
+            )
+            return out.metrics.stroke_volume[0], out.succeeded[0]
 
-        (sv, code), (dsv, _) = jax.jvp(stroke_volume, (length,), (jnp.ones_like(length),))
-        return sv, code, dsv
+        (sv, ok), (dsv, _) = jax.jvp(stroke_volume, (length,), (jnp.ones_like(length),))
+        return sv, ok, dsv
 
-    length = jnp.full((1,), scene.tube_length)  # one member: the stacked batch axis
-    _, code, tangent = sv_and_tangent(length)
-    assert int(code) == int(diffrax.RESULTS.successful._value)
+    length = jnp.asarray(scene.tube_length)
+    _, ok, tangent = sv_and_tangent(length)
+    assert bool(ok)
     assert np.isfinite(float(tangent)) and float(tangent) != 0.0
     h = 1e-4 * scene.tube_length
     sv_plus, _, _ = sv_and_tangent(length + h)

@@ -211,9 +211,3 @@ def apex_motion_table(shell: Shell, omegas, shortenings):
     grid_o, grid_c = np.meshgrid(np.asarray(omegas, float), np.asarray(shortenings, float))
     motion = jax.jit(jax.vmap(jax.vmap(lambda o, c: apex_motion(shell, o, c))))(grid_o, grid_c)
     return np.abs(np.asarray(motion.dz)) / mm, np.degrees(np.abs(np.asarray(motion.dalpha)))
-
-
-if __name__ == "__main__":
-    from cardiosoft._cli import geometry_main
-
-    raise SystemExit(geometry_main())

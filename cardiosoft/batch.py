@@ -1,0 +1,449 @@
+"""The public batch solve: a scene for a batch of designs and afterloads, in one compiled call.
+
+    import cardiosoft as cs
+    from cardiosoft.units import mmHg
+
+    scene = cs.load_scene("bench-dynamic")
+    out = cs.solve_beats(scene, omega=[3.0, 4.0, 5.0], afterload=90 * mmHg, save="metrics")
+    out.metrics.stroke_volume      # m^3, one per member
+    out.steady, out.succeeded      # can each member be trusted?
+
+Everything above the solve goes through here: :func:`cardiosoft.run` and
+:func:`cardiosoft.sweep`, the command-line tools, the bench calibration (``fit.bench``), the
+benchmarks, and a researcher's own design script.
+
+**Members.** ``omega``, ``shortening`` (C), ``bpm`` and ``afterload`` (the column head, Pa) are
+scalars or 1-D arrays; they are broadcast against each other to one batch axis, and each member
+is a scene that differs from ``scene`` only in them. ``None`` keeps the scene's value (for the
+afterload of a water-column scene: every head of the scene). Every other number of the scene is
+shared by all members; it may be a JAX array, so ``scene.replace(tube_length=L)`` with a traced
+``L`` differentiates with respect to it.
+
+**Beats.** :func:`solve_beats` builds each member's :class:`~cardiosoft.circuit.PumpCircuit`
+and integrates beat after beat from rest until the cycle-to-cycle change of the state is below
+the scene's ``steady_tol`` (or exactly ``beats`` beats), every member at its own pace, in one
+jitted, ``vmap``-ed call sharded over ``jax.devices()``. Numbers are array leaves: a new design,
+afterload, rate or tolerance does not recompile; a new batch size, effect or save mode does.
+
+**Save modes.** ``save="traces"`` keeps the last beat sampled at :data:`SAMPLES_PER_BEAT` times
+(the CLI's traces, the figures, the notebooks). ``save="metrics"`` keeps only the last beat's
+:class:`~cardiosoft.metrics.BeatMetrics`: each beat is reduced to its metrics inside the beat
+loop, so no sample outlives the beat it belongs to (the optimiser, the sweeps).
+
+**Derivatives.** The beat loop is a ``while_loop`` whose number of beats depends on the data,
+so the solve is differentiable in forward mode: ``jax.jvp`` and ``jax.jacfwd`` of any metric with
+respect to the members (Omega, C, bpm, afterload) or any number of the scene. The default solver
+configuration uses ``diffrax.ForwardMode`` for that reason (reverse mode, ``jax.grad``, cannot
+pass the loop). The derivative is that of the discretisation taken (diffrax stops gradients
+through step-size adaptation) and of the beats actually run: with a fixed number of beats it is
+the exact derivative of a smooth function; at the steady state the beat count is piecewise
+constant in the parameters, and the derivative agrees with finite differences of converged runs
+to about the steady tolerance. The peak force is a maximum over samples: its derivative is that
+of the largest sample (one-sided where two samples tie).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cardiosoft._validate import check_range
+from cardiosoft.actuation import CablePull
+from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
+from cardiosoft.circulation import AtrialSource, Bench, Tube, Valve, WaterColumn, Windkessel3
+from cardiosoft.metrics import BeatMetrics, beat_metrics
+from cardiosoft.pump import PumpSurrogate, load
+from cardiosoft.scene import RANGES, Scene, load_scene
+from cardiosoft.solve import SolverConfig, periodic_beats, preset
+from cardiosoft.static import column_stiffness, static_strokes
+from cardiosoft.units import RHO_WATER, G, bpm, mmHg
+
+__all__ = [
+    "SAMPLES_PER_BEAT",
+    "SAVE_MODES",
+    "BeatSolution",
+    "StaticSolution",
+    "default_config",
+    "scene_circuit",
+    "solve_beats",
+    "solve_static",
+]
+
+PULL_SAMPLES = 201
+"""Samples of the pull phase; the force curve, peak force and mechanical work use them."""
+SAMPLES_PER_BEAT = PULL_SAMPLES + 200
+"""Samples of one beat: the pull phase (its end on the grid), then 200 over the rest."""
+SAVE_MODES = ("traces", "metrics")
+MEMBER_FIELDS = ("omega", "shortening", "bpm", "afterload")
+"""What may differ between the members of one batch."""
+# Scene fields that are numbers (or tuples of numbers) of the physics: array leaves of the solve.
+SCENE_NUMBERS = (
+    "omega",
+    "shortening",
+    "bpm",
+    "pull_fraction",
+    "hold_fraction",
+    "release_fraction",
+    "column_diameter",
+    "tube_length",
+    "tube_diameter",
+    "loss_coefficient",
+    "windkessel",
+    "venous_pressure",
+    "preload_pressure",
+    "valve_smoothing",
+    "valve_resistance",
+    "cable_friction",
+    "viscoelastic_ratio",
+    "relaxation_time",
+)
+
+
+def scene_circuit(scene: Scene, pump: PumpSurrogate, afterload=None) -> PumpCircuit:
+    """The :class:`PumpCircuit` of one member of ``scene``, with only the scene's effects.
+
+    ``afterload`` is the column head (Pa) of a water-column scene (default: its first) and is
+    ignored by a Windkessel scene. Numbers may be traced (this runs inside the batch solve).
+    """
+    stroke = scene.shortening * pump.cable_length(scene.omega)
+    actuation = CablePull(
+        stroke,
+        1.0 / (scene.bpm * bpm),
+        scene.pull_fraction,
+        scene.hold_fraction,
+        scene.release_fraction,
+        shape=scene.shape,
+    )
+    friction = CableFriction(scene.cable_friction) if scene.has("cable_friction") else None
+    viscoelasticity = (
+        ShellViscoelasticity(scene.viscoelastic_ratio, scene.relaxation_time)
+        if scene.has("shell_viscoelasticity")
+        else None
+    )
+    if scene.afterload_type == "water_column":
+        column = WaterColumn(
+            scene.column_diameter,
+            scene.afterloads[0] if afterload is None else afterload,
+            rise=scene.has("column_rise"),
+            inertia=scene.has("column_inertia"),
+        )
+        tube = Tube(
+            scene.tube_length,
+            scene.tube_diameter,
+            loss_coefficient=scene.loss_coefficient,
+            inertia=scene.has("tube_inertia"),
+            resistance=scene.has("tube_resistance"),
+            minor_loss=scene.has("minor_loss"),
+        )
+        return PumpCircuit(
+            pump,
+            scene.omega,
+            actuation,
+            Bench(tube, column),
+            cable_friction=friction,
+            viscoelasticity=viscoelasticity,
+        )
+    rp, c, rd = scene.windkessel
+    r_in, r_out = scene.valve_resistance
+    return PumpCircuit(
+        pump,
+        scene.omega,
+        actuation,
+        Windkessel3(rp, c, rd, scene.venous_pressure),
+        outlet_valve=Valve(r_out, scene.valve_kind, scene.valve_smoothing),
+        inlet_valve=Valve(r_in, scene.valve_kind, scene.valve_smoothing),
+        preload=AtrialSource(scene.preload_pressure),
+        cable_friction=friction,
+        viscoelasticity=viscoelasticity,
+    )
+
+
+def default_config(scene: Scene) -> SolverConfig:
+    """The scene's accuracy preset, stiff when it has valves, in forward mode (module docstring)."""
+    config = preset(scene.accuracy, stiff=scene.has("valves"))
+    return dataclasses.replace(config, adjoint=diffrax.ForwardMode())
+
+
+class BeatSolution(eqx.Module):
+    """What :func:`solve_beats` returns; every array has the batch axis first (SI).
+
+    - ``members``: the member values, ``{"omega", "shortening", "bpm", "afterload"}`` (the
+      afterload, a column head in Pa, is NaN for a Windkessel scene).
+    - ``metrics``: the last beat's :class:`~cardiosoft.metrics.BeatMetrics`.
+    - ``traces``: with ``save="traces"``, the last beat: ``time`` (s, from 0 to the period),
+      ``volume`` and the other states, and every signal of :meth:`PumpCircuit.signals`;
+      ``None`` with ``save="metrics"``.
+    - ``beats``: beats integrated; ``residual``: the cycle-to-cycle change of the last beat
+      (ml, ml/s or mmHg); ``volume_drift``: the largest relative change of the total fluid
+      volume; ``result``: diffrax's result; ``num_steps``: solver steps of the last beat.
+    - ``steady_tol`` (static): the tolerance ``residual`` is held to; 0 for a fixed number of
+      beats, which are steady by definition.
+    """
+
+    members: dict
+    metrics: BeatMetrics
+    traces: dict | None
+    beats: jax.Array
+    residual: jax.Array
+    volume_drift: jax.Array
+    result: diffrax.RESULTS
+    num_steps: jax.Array
+    steady_tol: float = eqx.field(static=True)
+
+    @property
+    def succeeded(self) -> jax.Array:
+        """Per member: the solver finished every beat."""
+        return diffrax.is_successful(self.result)
+
+    @property
+    def steady(self) -> jax.Array:
+        """Per member: at its periodic steady state (or run for the fixed number of beats)."""
+        return (self.residual <= self.steady_tol) if self.steady_tol > 0 else self.beats > 0
+
+    def message(self, i: int) -> str:
+        """Member ``i`` in words: ``"ok"``, not steady, or why the solver failed."""
+        beats = int(self.beats[i])
+        if not bool(self.succeeded[i]):
+            reason = diffrax.RESULTS[jax.tree_util.tree_map(lambda a: a[i], self.result)]
+            return f"solver failed in beat {beats}: {str(reason).strip()}"
+        if not bool(self.steady[i]):
+            return (
+                f"not steady after {beats} beats (cycle change {float(self.residual[i]):.3g} > "
+                f"{self.steady_tol:g})"
+            )
+        return "ok"
+
+
+def _members(scene: Scene, omega, shortening, bpm_value, afterload) -> dict:
+    """The member values, validated where concrete, broadcast to one batch axis."""
+    if scene.afterload_type == "water_column":
+        if afterload is None:
+            afterload = jnp.asarray(scene.afterloads)
+        check_range("afterload", afterload, "mmHg", *RANGES["afterloads"], scale=mmHg)
+    elif afterload is not None:
+        raise ValueError(
+            f"afterload: scene {scene.name} has a {scene.afterload_type} afterload; the "
+            "afterload argument sets water-column heads"
+        )
+    else:
+        afterload = jnp.nan
+    values = {
+        "omega": scene.omega if omega is None else omega,
+        "shortening": scene.shortening if shortening is None else shortening,
+        "bpm": scene.bpm if bpm_value is None else bpm_value,
+        "afterload": afterload,
+    }
+    check_range("omega", values["omega"], "", *RANGES["omega"])
+    check_range("shortening C", values["shortening"], "", *RANGES["shortening"])
+    check_range("bpm", values["bpm"], "bpm", *RANGES["bpm"], lo_open=True)
+    ftype = jnp.result_type(float)
+    arrays = {k: jnp.asarray(v, dtype=ftype) for k, v in values.items()}
+    for k, v in arrays.items():
+        if v.ndim > 1:
+            raise ValueError(f"{k}: a scalar or a 1-D array of members, got shape {v.shape}")
+    empty = [k for k, v in arrays.items() if v.size == 0]
+    if empty:
+        raise ValueError(f"{empty[0]}: the batch is empty; give at least one member")
+    try:
+        shape = jnp.broadcast_shapes(*(v.shape for v in arrays.values()), (1,))
+    except ValueError:
+        sizes = ", ".join(f"{k} {v.shape[0]}" for k, v in arrays.items() if v.ndim)
+        raise ValueError(
+            f"members: {sizes} values do not broadcast to one batch; give scalars or "
+            "arrays of one common length"
+        ) from None
+    return {k: jnp.broadcast_to(v, shape) for k, v in arrays.items()}
+
+
+def _split(scene: Scene):
+    """(structure, numbers): the hashable, static part of ``scene`` and its numbers as arrays."""
+    ftype = jnp.result_type(float)
+    numbers = {f: jnp.asarray(getattr(scene, f), dtype=ftype) for f in SCENE_NUMBERS}
+    # What the circuit's structure does not depend on is blanked: a scene of another name or
+    # accuracy, with the same effects, reuses the compiled solve.
+    structure = dataclasses.replace(
+        scene,
+        **dict.fromkeys(SCENE_NUMBERS),
+        **dict.fromkeys(("name", "source", "description", "accuracy"), ""),
+        afterloads=(),
+        max_beats=0,
+        steady_tol=0.0,
+    )
+    return structure, numbers
+
+
+def _shard(tree):
+    """Spread the batch over all devices when it divides evenly (one device: unchanged)."""
+    devices = jax.devices()
+    n = jax.tree_util.tree_leaves(tree)[0].shape[0]
+    if len(devices) < 2 or n % len(devices):
+        return tree
+    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+    return jax.tree_util.tree_map(lambda a: jax.device_put(a, sharding), tree)
+
+
+def _save_times(actuation: CablePull):
+    """Samples of one beat with the end of the pull on the grid (the first PULL_SAMPLES)."""
+    t_pull = actuation.pull_fraction * actuation.period
+    pull = jnp.linspace(0.0, 1.0, PULL_SAMPLES) * t_pull
+    n_rest = SAMPLES_PER_BEAT - PULL_SAMPLES
+    rest = t_pull + jnp.linspace(0.0, 1.0, n_rest + 1)[1:] * (actuation.period - t_pull)
+    return jnp.concatenate([pull, rest])
+
+
+def _metrics(circuit: PumpCircuit, ts, ys):
+    """The beat's signals and metrics from its saved states."""
+    signals = jax.vmap(circuit.signals)(ts, ys)
+    if circuit.preload is None:  # the bench: P_a is the column head before the pull
+        reference = circuit.afterload.node_pressure(circuit.afterload.init())
+    else:  # a Windkessel: the mean afterload pressure
+        reference = jnp.mean(signals["node_pressure"])
+    metrics = beat_metrics(
+        ts, ys["volume"], signals, PULL_SAMPLES, circuit.actuation.period, reference
+    )
+    return signals, metrics
+
+
+@eqx.filter_jit
+def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save: str):
+    def one(member):
+        values = {k: v for k, v in member.items() if k != "afterload"}
+        scene = dataclasses.replace(structure, **(numbers | values))
+        circuit = scene_circuit(scene, pump, member["afterload"])
+        ts = _save_times(circuit.actuation)
+        observe = None if save == "traces" else (lambda ts, ys: _metrics(circuit, ts, ys)[1])
+        out = periodic_beats(
+            circuit,
+            circuit.init(),
+            circuit.actuation.period,
+            ts,
+            jump_ts=circuit.actuation.kink_times(1),
+            total_volume=circuit.total_volume,
+            max_beats=max_beats,
+            tol=tol,
+            config=config,
+            observe=observe,
+        )
+        if save == "traces":
+            signals, metrics = _metrics(circuit, ts, out.observed)
+            traces = {"time": ts, **_flat_states(out.observed), **signals}
+        else:
+            metrics, traces = out.observed, None
+        return metrics, traces, out
+
+    metrics, traces, out = jax.vmap(one)(members)
+    return metrics, traces, out
+
+
+def _flat_states(ys: dict) -> dict:
+    """The state's leaves by their own names (``volume``, ``column_volume``, ``relaxation``...)."""
+    flat, _ = jax.tree_util.tree_flatten_with_path(ys)
+    return {path[-1].key: leaf for path, leaf in flat}
+
+
+def solve_beats(
+    scene="bench-dynamic",
+    *,
+    omega=None,
+    shortening=None,
+    bpm=None,
+    afterload=None,
+    beats: int | None = None,
+    save: str = "traces",
+    pump: PumpSurrogate | None = None,
+    config: SolverConfig | None = None,
+) -> BeatSolution:
+    """Simulate a batch of members of ``scene`` to their periodic steady state (module docstring).
+
+    **Arguments:**
+
+    - ``scene``: a :class:`~cardiosoft.scene.Scene`, a shipped scene's name or a scene file.
+    - ``omega``, ``shortening``: the design (dimensionless); ``bpm``: beats per minute;
+      ``afterload``: column head (Pa) of a water-column scene. Scalars or 1-D arrays, broadcast
+      to one batch axis; ``None`` keeps the scene's value(s).
+    - ``beats``: run exactly this many beats, in [1, 500] (default: until steady, at most the
+      scene's ``max_beats``).
+    - ``save``: ``"traces"`` or ``"metrics"`` (:data:`SAVE_MODES`).
+    - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate`; default the shipped one.
+    - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default :func:`default_config`.
+
+    **Returns:** a :class:`BeatSolution`. Nothing is raised for a member that fails or is not
+    steady: see ``succeeded``, ``steady`` and ``message(i)``. Bad input raises ``ValueError``.
+    """
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    if scene.static:
+        raise ValueError(f"scene {scene.name} is static: use solve_static")
+    if save not in SAVE_MODES:
+        raise ValueError(f"save = {save!r}: allowed {', '.join(SAVE_MODES)}")
+    if beats is not None:
+        if isinstance(beats, bool) or not isinstance(beats, int | np.integer):
+            raise ValueError(f"beats = {beats!r}: allowed a whole number in [1, 500]")
+        check_range("beats", beats, "beats", 1, 500)
+    members = _members(scene, omega, shortening, bpm, afterload)
+    pump = load() if pump is None else pump
+    config = default_config(scene) if config is None else config
+    max_beats, tol = (int(beats), 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
+    structure, numbers = _split(scene)
+    metrics, traces, out = _solve(
+        structure, numbers, pump, _shard(members), max_beats, tol, config, save
+    )
+    return BeatSolution(
+        members=members,
+        metrics=metrics,
+        traces=traces,
+        beats=out.beats,
+        residual=out.residual,
+        volume_drift=out.volume_drift,
+        result=out.result,
+        num_steps=out.num_steps,
+        steady_tol=float(tol),
+    )
+
+
+class StaticSolution(eqx.Module):
+    """What :func:`solve_static` returns: quasi-static pulls against the column (SI, per member).
+
+    The force and work are the load cell's (cable friction included when the scene has it);
+    ``efficiency`` is the paper's ``P_a SV / M``.
+    """
+
+    members: dict
+    stroke_volume: jax.Array
+    peak_force: jax.Array
+    mech_work: jax.Array
+    efficiency: jax.Array
+
+
+def solve_static(
+    scene="bench-static",
+    *,
+    omega=None,
+    shortening=None,
+    afterload=None,
+    pump: PumpSurrogate | None = None,
+) -> StaticSolution:
+    """Quasi-static strokes of a water-column scene's members (no ODE; :mod:`cardiosoft.static`).
+
+    The arguments are those of :func:`solve_beats`; the rate plays no part. Any water-column
+    scene works, dynamic ones too (the paper's static SV beside the dynamic one).
+    """
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    if scene.afterload_type != "water_column":
+        raise ValueError(f"scene {scene.name}: quasi-static strokes need a water-column afterload")
+    members = _members(scene, omega, shortening, None, afterload)
+    pump = load() if pump is None else pump
+    area = 0.25 * math.pi * scene.column_diameter**2
+    k = column_stiffness(area, RHO_WATER, G) if scene.has("column_rise") else 0.0
+    friction = scene.cable_friction if scene.has("cable_friction") else 0.0
+    out = static_strokes(
+        pump, members["omega"], members["shortening"], members["afterload"], k, friction
+    )
+    return StaticSolution(members, *out)
+

@@ -1,0 +1,45 @@
+"""Writing files whole, and reading their hashes: plain Python, nothing else of cardiosoft.
+
+Files are written whole or not at all: each goes to a temporary file in the destination folder
+and is renamed into place only when complete. An existing output is not overwritten unless asked.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+__all__ = ["atomic_path", "refuse_overwrite", "sha256"]
+
+
+def refuse_overwrite(path, force: bool) -> None:
+    """Raise ``ValueError`` if ``path`` exists and ``force`` was not given."""
+    if Path(path).exists() and not force:
+        raise ValueError(f"output {path} exists already; pass --force to overwrite it")
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path next to ``path``; rename it onto ``path`` only on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+
+
+def sha256(path) -> str:
+    """Hex SHA-256 of the file's bytes (what a model card records)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 16), b""):
+            h.update(block)
+    return h.hexdigest()

@@ -1,0 +1,167 @@
+"""``cardiosoft.batch``: the public batch solve's save modes, members, trust flags, bad input and
+derivatives with respect to the design (checked against central finite differences)."""
+
+import dataclasses
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cardiosoft.batch import BeatSolution, default_config, solve_beats, solve_static
+from cardiosoft.metrics import BeatMetrics
+from cardiosoft.pump import load
+from cardiosoft.scene import load_scene
+from cardiosoft.solve import SolverConfig
+from cardiosoft.units import ml, mmHg
+
+METRICS = ("stroke_volume", "peak_force", "mech_work", "efficiency")
+# Omega x C: the centre of Table I's grid and the corners of the surrogate's domain
+DESIGNS = np.array([[4.0, 0.4], [0.3, 0.05], [0.3, 0.62], [5.8, 0.05], [5.8, 0.62]])
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return load_scene("bench-dynamic")
+
+
+@pytest.fixture(scope="module")
+def both_modes(scene):
+    return {
+        save: solve_beats(scene, omega=[3.0, 4.0, 5.0], afterload=60 * mmHg, save=save)
+        for save in ("traces", "metrics")
+    }
+
+
+def test_metrics_mode_equals_traces_mode_and_keeps_no_samples(both_modes):
+    traces, metrics = both_modes["traces"], both_modes["metrics"]
+    assert metrics.traces is None
+    assert traces.traces["volume"].shape == (3, 401)
+    np.testing.assert_array_equal(traces.beats, metrics.beats)
+    for f in dataclasses.fields(BeatMetrics):
+        a, b = getattr(traces.metrics, f.name), getattr(metrics.metrics, f.name)
+        assert a.shape == (3,)
+        # the same beats and samples, reduced inside the loop instead of after it
+        np.testing.assert_allclose(b, a, rtol=1e-12, err_msg=f.name)
+    # the metrics-only result carries nothing of the beat's length
+    sizes = [x.size for x in jax.tree_util.tree_leaves(metrics) if eqx.is_array(x)]
+    assert max(sizes) == 3
+
+
+def test_members_broadcast_and_flags(both_modes):
+    out = both_modes["metrics"]
+    assert isinstance(out, BeatSolution)
+    np.testing.assert_array_equal(out.members["omega"], [3.0, 4.0, 5.0])
+    np.testing.assert_allclose(out.members["afterload"], 60 * mmHg)
+    assert bool(jnp.all(out.succeeded)) and bool(jnp.all(out.steady))
+    assert [out.message(i) for i in range(3)] == ["ok"] * 3
+    sv = np.asarray(out.metrics.stroke_volume) / ml
+    assert np.all(np.diff(sv) != 0)  # three different designs, three different answers
+
+
+def test_fixed_beats_are_steady_by_definition_and_reported_as_run(scene):
+    out = solve_beats(scene, beats=2, save="metrics")
+    np.testing.assert_array_equal(out.beats, [2, 2, 2])
+    assert bool(jnp.all(out.steady))
+
+
+def test_static_solution_matches_run(scene):
+    from cardiosoft.experiment import run
+
+    static = solve_static("bench-static")
+    result = run("bench-static")
+    for i, m in enumerate(result.members):
+        assert float(static.stroke_volume[i]) == m.metrics["static_stroke_volume"]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"omega": -1.0}, "omega = -1"),
+        ({"shortening": 0.9}, "shortening C = 0.9"),
+        ({"bpm": 0.0}, "bpm = 0"),
+        ({"afterload": 200 * mmHg}, "afterload = 200 mmHg"),
+        ({"omega": float("nan")}, "omega = nan"),
+        ({"beats": 2.5}, "beats = 2.5"),
+        ({"beats": 0}, "beats = 0"),
+        ({"save": "all"}, "save = 'all'"),
+        ({"omega": []}, "batch is empty"),
+        ({"omega": [[4.0]]}, "1-D"),
+    ],
+)
+def test_bad_input_names_the_parameter(scene, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        solve_beats(scene, **kwargs)
+
+
+def test_a_windkessel_scene_refuses_a_column_head():
+    with pytest.raises(ValueError, match="afterload"):
+        solve_beats("lv-systemic", afterload=60 * mmHg)
+
+
+# ------------------------------------------------------------------------------ derivatives
+def test_jacfwd_wrt_the_design_matches_central_differences(scene):
+    """d(SV, peak force, M, e) / d(Omega, C) by jax.jacfwd through the public solve, at five
+    designs including the corners of the domain, against central differences.
+
+    Exactly 2 beats of 400 equal steps each: the metric is then a smooth function of the design
+    (the beat count and the steps are fixed, so both sides of a difference see the same
+    discretisation). With adaptive steps the two sides take different steps, and at rtol 1e-10
+    the difference quotient of dSV/dOmega at (4, 0.4), a small derivative (-0.064 ml), was
+    measured 2.4e-3 off: that is the noise of the quotient, not an error of the derivative. With
+    a step of 1e-4 relative, the quotient's truncation error is ~1e-8 relative."""
+    config = SolverConfig(diffrax.Tsit5(), fixed_steps=400, adjoint=diffrax.ForwardMode())
+    head = 60 * mmHg
+    pump = load()
+
+    def metrics(design):
+        out = solve_beats(
+            scene,
+            omega=design[0],
+            shortening=design[1],
+            afterload=head,
+            beats=2,
+            save="metrics",
+            config=config,
+            pump=pump,
+        )
+        return jnp.stack([getattr(out.metrics, m)[0] for m in METRICS])
+
+    jacobians = jax.jit(jax.vmap(jax.jacfwd(metrics)))(jnp.asarray(DESIGNS))
+    assert jacobians.shape == (len(DESIGNS), len(METRICS), 2)
+
+    step = 1e-4 * DESIGNS
+    shifted = []
+    for k in range(2):  # +h and -h in Omega, then in C, for every design: one batch
+        e = np.zeros(2)
+        e[k] = 1.0
+        shifted += [DESIGNS + step * e, DESIGNS - step * e]
+    batch = np.concatenate(shifted)
+    out = solve_beats(
+        scene,
+        omega=batch[:, 0],
+        shortening=batch[:, 1],
+        afterload=head,
+        beats=2,
+        save="metrics",
+        config=config,
+        pump=pump,
+    )
+    assert bool(jnp.all(out.succeeded))
+    values = np.stack([np.asarray(getattr(out.metrics, m)) for m in METRICS], axis=-1)
+    values = values.reshape(2, 2, len(DESIGNS), len(METRICS))  # (direction, sign, design, m)
+    for k in range(2):
+        central = (values[k, 0] - values[k, 1]) / (2 * step[:, k : k + 1])
+        np.testing.assert_allclose(
+            np.asarray(jacobians[:, :, k]),
+            central,
+            rtol=1e-4,
+            err_msg=f"d/d{'Omega' if k == 0 else 'C'}",
+        )
+
+
+def test_default_config_differentiates_in_forward_mode(scene):
+    assert isinstance(default_config(scene).adjoint, diffrax.ForwardMode)
+    assert isinstance(default_config(load_scene("lv-systemic")).solver, diffrax.Kvaerno5)
