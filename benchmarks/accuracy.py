@@ -10,14 +10,16 @@ notes/diffrax-practice.md section 6: EQX_ON_ERROR=nan, float64, compile once, th
    vmapped to the periodic steady state as ``cardiosoft.run`` does: compile and run time, solver
    steps, and the error of the dynamic SV and the peak force against "reference"; then a
    work-precision sweep (steps vs SV error) over rtol at a fixed 5 beats, and where the time
-   goes (the beats alone, saving 401 or 2 points a beat);
+   goes (the same beats with the two save modes, ``save="traces"`` and ``save="metrics"``);
 2. batch throughput: one vmapped call over B afterloads against B separate calls;
 3. a second method: scipy ``solve_ivp`` (RK45, LSODA) on the same vector field, piecewise between
    the actuation kinks, against diffrax for one afterload and 5 beats.
 
-The solver call timed is ``cardiosoft.experiment._simulate`` (private): the one jitted call
-inside ``run()``, without its Python set-up and result records (``run()`` itself is timed once
-in section 3 for comparison).
+Only public names of cardiosoft are used. The solver call timed is the public batch solve
+``cardiosoft.solve_beats`` with the configuration ``run()`` gives it
+(``cardiosoft.batch.default_config``: the scene's preset, ``diffrax.ForwardMode``). It is jitted
+inside: a timed call includes its small Python set-up (checking and stacking the members), but
+not ``run()``'s result records (``run()`` itself is timed once in section 3 for comparison).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import os
 
 os.environ.setdefault("EQX_ON_ERROR", "nan")  # before equinox/diffrax are imported
 
+import dataclasses
 import itertools
 import time
 import timeit
@@ -34,7 +37,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
@@ -42,10 +44,8 @@ from jax.flatten_util import ravel_pytree  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 import cardiosoft  # noqa: E402
-from cardiosoft.experiment import _circuit, _save_times, _simulate, _stack, run  # noqa: E402
-from cardiosoft.pump import load  # noqa: E402
-from cardiosoft.scene import load_scene  # noqa: E402
-from cardiosoft.solve import SolverConfig, periodic_beats, preset  # noqa: E402
+from cardiosoft import load_pump, load_scene, run, scene_circuit, solve_beats  # noqa: E402
+from cardiosoft.batch import SAMPLES_PER_BEAT, SAVE_MODES, default_config  # noqa: E402
 from cardiosoft.units import ml, mmHg  # noqa: E402
 
 SCENE = "bench-dynamic"
@@ -84,39 +84,19 @@ def steady(fns: dict, repeat=REPEAT) -> dict:
     return best
 
 
-@eqx.filter_jit
-def _beats_only(circuits, n_save: int, max_beats: int, tol, config):
-    """``_simulate`` without signals and metrics, and with ``n_save`` save times per beat."""
-
-    def one(circuit):
-        period = circuit.actuation.period
-        return periodic_beats(
-            circuit,
-            circuit.init(),
-            period,
-            jnp.linspace(0.0, 1.0, n_save) * period,
-            jump_ts=circuit.actuation.kink_times(1),
-            total_volume=circuit.total_volume,
-            max_beats=max_beats,
-            tol=tol,
-            config=config,
-        )
-
-    return jax.vmap(one)(circuits)
-
-
-def bench_circuits(scene, pump, heads_pa):
-    return _stack([_circuit(scene, pump, h) for h in heads_pa])
+def scene_config(scene, name: str):
+    """The configuration ``run()`` uses for ``scene`` at accuracy ``name``."""
+    return default_config(scene.replace(accuracy=name))
 
 
 def member_stats(out):
-    beats, _signals, metrics = out
+    """Per member of a :class:`cardiosoft.BeatSolution`: SV (ml), peak force, steps, beats, ok."""
     return {
-        "sv": np.asarray(metrics.stroke_volume) / ml,
-        "force": np.asarray(metrics.peak_force),
-        "steps": np.asarray(beats.num_steps),
-        "beats": np.asarray(beats.beats),
-        "ok": np.asarray(beats.result._value) == 0,
+        "sv": np.asarray(out.metrics.stroke_volume) / ml,
+        "force": np.asarray(out.metrics.peak_force),
+        "steps": np.asarray(out.num_steps),
+        "beats": np.asarray(out.beats),
+        "ok": np.asarray(out.succeeded),
     }
 
 
@@ -138,14 +118,13 @@ def header():
 
 
 def section_presets(scene, pump):
-    heads = scene.afterloads
-    circuits = bench_circuits(scene, pump, heads)
-    max_beats, tol = int(scene.max_beats), scene.steady_tol  # as run() passes them
+    heads = jnp.asarray(scene.afterloads)
+    max_beats, tol = int(scene.max_beats), scene.steady_tol  # what solve_beats stops at
     rows, seen, calls = {}, [], {}
     for name in ("reference", "default", "fast"):  # reference first: the others compare to it
-        config = preset(name)
+        config = scene_config(scene, name)
         static_key = (type(config.solver).__name__, config.max_steps, config.dt0)
-        calls[name] = lambda c=config: _simulate(circuits, max_beats, tol, c)
+        calls[name] = lambda c=config: solve_beats(scene, afterload=heads, pump=pump, config=c)
         first = first_call(calls[name])
         rows[name] = dict(
             config=config,
@@ -162,9 +141,10 @@ def section_presets(scene, pump):
     ref = rows["reference"]
     print()
     print(
-        f"1. Accuracy presets: {len(heads)} afterloads "
-        f"({', '.join(f'{h / mmHg:g}' for h in heads)} mmHg) vmapped in one call, "
-        f"beats to the steady state (tol {tol:g}, at most {max_beats})"
+        f"1. Accuracy presets: {heads.size} afterloads "
+        f"({', '.join(f'{h / mmHg:g}' for h in scene.afterloads)} mmHg) vmapped in one "
+        f"solve_beats call (save='traces', as run()), beats to the steady state (tol {tol:g}, "
+        f"at most {max_beats})"
     )
     print("   errors: largest over the afterloads, against 'reference'")
     print(
@@ -193,7 +173,10 @@ def section_presets(scene, pump):
         "   compile = first call - steady call; * = no new compile: rtol/atol are array leaves, "
         "so a preset with the same solver and max_steps reuses the compiled call"
     )
-    print("   steps = solver steps of the last beat, summed over the afterloads")
+    print(
+        "   run = one solve_beats call, its Python set-up included; steps = solver steps of the "
+        "last beat, summed over the afterloads"
+    )
     print(
         "   work-precision (presets, steps -> max |dSV|): "
         + "; ".join(
@@ -204,30 +187,32 @@ def section_presets(scene, pump):
     )
 
     # Work-precision at a fixed number of beats (no steady-state stopping in the error): one
-    # compile for all tolerances (array leaves), reference = Tsit5 at rtol 1e-11.
+    # compile for all tolerances (array leaves), reference = Tsit5 at rtol 1e-11. Only the
+    # metrics are needed: save="metrics" (a compile of its own, not shared with section 3).
     def sweep_config(rtol):
-        return SolverConfig(preset("default").solver, rtol=rtol, atol=rtol * 1e-3)
+        return dataclasses.replace(scene_config(scene, "default"), rtol=rtol, atol=rtol * 1e-3)
 
-    def sweep(rtol):
-        return member_stats(_simulate(circuits, SWEEP_BEATS, 0.0, sweep_config(rtol)))
+    def sweep_call(rtol):
+        return solve_beats(
+            scene,
+            afterload=heads,
+            beats=SWEEP_BEATS,
+            save="metrics",
+            pump=pump,
+            config=sweep_config(rtol),
+        )
 
     t0 = time.perf_counter()
-    truth = sweep(1e-11)
+    truth = member_stats(sweep_call(1e-11))
     compile_sweep = time.perf_counter() - t0
     print(
-        f"   work-precision sweep, Tsit5, atol = 1e-3 rtol, exactly {SWEEP_BEATS} beats, against "
-        f"rtol 1e-11 (one compile, {compile_sweep:.1f} s):"
+        f"   work-precision sweep, Tsit5, atol = 1e-3 rtol, exactly {SWEEP_BEATS} beats, "
+        f"save='metrics', against rtol 1e-11 (one compile, {compile_sweep:.1f} s):"
     )
     print(f"   {'rtol':>6} {'steps':>6} {'run ms':>8} {'|dSV| ml':>9} {'|dF| N':>9}")
-    times = steady(
-        {
-            r: (lambda r=r: _simulate(circuits, SWEEP_BEATS, 0.0, sweep_config(r)))
-            for r in SWEEP_RTOL
-        },
-        repeat=3,
-    )
+    times = steady({r: (lambda r=r: sweep_call(r)) for r in SWEEP_RTOL}, repeat=3)
     for rtol in SWEEP_RTOL:
-        s = sweep(rtol)
+        s = member_stats(sweep_call(rtol))
         print(
             f"   {rtol:>6.0e} {int(s['steps'].sum()):>6} {1e3 * times[rtol]:>8.2f} "
             f"{np.max(np.abs(s['sv'] - truth['sv'])):>9.1e} "
@@ -235,50 +220,52 @@ def section_presets(scene, pump):
             + ("" if s["ok"].all() and truth["ok"].all() else "  (a member FAILED)")
         )
 
-    # Where the time goes: the same beats without signals/metrics, saving 401 or 2 points a beat
-    # (every beat saves; only the last beat's samples are used). One compile per n_save.
-    n_full = _simulate_save_count(circuits)
+    # Where the time goes: the same beats to the steady state in the two save modes. Both
+    # interpolate SAMPLES_PER_BEAT samples in every beat; "traces" carries them through the beat
+    # loop and computes signals and metrics of the last beat once after it, "metrics" reduces
+    # every beat to its metrics inside the loop. One compile per save mode.
     levels = {
-        "fast": preset("fast"),
-        "default": preset("default"),
-        "reference": SolverConfig(preset("default").solver, rtol=1e-10, atol=1e-13),
+        "fast": scene_config(scene, "fast"),
+        "default": scene_config(scene, "default"),
+        "reference": dataclasses.replace(scene_config(scene, "default"), rtol=1e-10, atol=1e-13),
     }
-    calls = {}
-    for n_save in (n_full, 2):
+    calls, beats = {}, {}
+    for save in SAVE_MODES:
         for name, config in levels.items():
-            calls[name, n_save] = lambda n=n_save, c=config: _beats_only(
-                circuits, n, max_beats, tol, c
+            calls[name, save] = lambda s=save, c=config: solve_beats(
+                scene, afterload=heads, save=s, pump=pump, config=c
             )
-        first_call(calls["default", n_save])
-    for name, config in levels.items():  # same compile as "default"; timed in this group
-        calls[name, "full"] = lambda c=config: _simulate(circuits, max_beats, tol, c)
+        first_call(calls["default", save])  # "traces": compiled above already
+    for name in levels:
+        beats[name] = "/".join(str(b) for b in member_stats(calls[name, "metrics"]())["beats"])
     times = steady(calls, repeat=3)
     print(
-        f"   where the time goes (ms; 'reference' tolerances at max_steps 16384): "
-        f"the full call = periodic_beats saving {n_full} points every beat + signals/metrics"
+        f"   where the time goes (ms; the same beats to the steady state; 'reference' tolerances "
+        f"at the default max_steps {levels['reference'].max_steps}): every beat interpolates "
+        f"{SAMPLES_PER_BEAT} samples;"
     )
-    print(f"   {'':>9} {'full call':>10} {f'{n_full} saves':>10} {'2 saves':>8}")
+    print(
+        "   save='traces' keeps them through the beat loop and computes signals + metrics of the "
+        "last beat once after it; save='metrics' computes signals + metrics of every beat inside "
+        "the loop and keeps only those"
+    )
+    print(f"   {'':>9} {'beats':>7} {'traces':>8} {'metrics':>8} {'metrics/':>9}")
+    print(f"   {'':>9} {'':>7} {'ms':>8} {'ms':>8} {'traces':>9}")
     for name in levels:
+        t_tr, t_me = times[name, "traces"], times[name, "metrics"]
         print(
-            f"   {name:>9} {1e3 * times[name, 'full']:>10.2f} {1e3 * times[name, n_full]:>10.2f} "
-            f"{1e3 * times[name, 2]:>8.2f}"
+            f"   {name:>9} {beats[name]:>7} {1e3 * t_tr:>8.2f} {1e3 * t_me:>8.2f} "
+            f"{t_me / t_tr:>9.2f}"
         )
     return rows
 
 
-def _simulate_save_count(circuits) -> int:
-    """Save times per beat of ``_simulate`` (the length of its last-beat traces)."""
-    circuit = jax.tree_util.tree_map(lambda a: a[0] if eqx.is_array(a) else a, circuits)
-    return int(_save_times(circuit.actuation).shape[0])
-
-
 def section_batch(scene, pump):
-    config = preset("default")
-    max_beats, tol = int(scene.max_beats), scene.steady_tol
+    config = scene_config(scene, "default")
     print()
     print(
-        "2. Batch throughput, 'default': one vmapped call over B afterloads (linspace 0..150 "
-        "mmHg) vs B separate calls (each a vmapped batch of 1, compiled once)"
+        "2. Batch throughput, 'default': one solve_beats call over B afterloads (linspace 0..150 "
+        "mmHg) vs B separate calls (each a batch of 1, compiled once)"
     )
     print(
         f"{'B':>4} {'compile':>8} {'batched':>9} {'per mbr':>8} {'separate':>9} {'per mbr':>8} "
@@ -290,20 +277,21 @@ def section_batch(scene, pump):
     )
     compiled_single = False
     for b in BATCHES:
-        heads = tuple(float(h) * mmHg for h in np.linspace(0.0, 150.0, b))
-        batched = bench_circuits(scene, pump, heads)
-        singles = [bench_circuits(scene, pump, (h,)) for h in heads]
+        heads = np.linspace(0.0, 150.0, b) * mmHg
 
-        def batch(c=batched):
-            return _simulate(c, max_beats, tol, config)
+        def batch(heads=heads):
+            return solve_beats(scene, afterload=heads, pump=pump, config=config)
 
-        def separate(cs=singles):
-            return [_simulate(c, max_beats, tol, config) for c in cs]  # dispatch all, then wait
+        def separate(heads=heads):  # dispatch all, then wait
+            return [
+                solve_beats(scene, afterload=heads[i : i + 1], pump=pump, config=config)
+                for i in range(heads.size)
+            ]
 
         first = first_call(batch)
         stats = member_stats(batch())
         if not compiled_single:
-            first_call(lambda c=singles[0]: _simulate(c, max_beats, tol, config))
+            first_call(lambda h=heads[:1]: batch(h))  # the batch of 1 of `separate`
             compiled_single = True
         times = steady({"batch": batch, "separate": separate}, repeat=3)
         t_batch, t_sep = times["batch"], times["separate"]
@@ -316,13 +304,14 @@ def section_batch(scene, pump):
         )
     print(
         "   speedup = separate / batched; a batch runs its while loops until its slowest member "
-        "is done (most beats, most steps); compile of B = 3 is shared with section 1"
+        "is done (most beats, most steps); every call includes solve_beats's Python set-up; "
+        "compile of B = 3 is shared with section 1"
     )
 
 
 def section_scipy(scene, pump):
     head = SCIPY_AFTERLOAD * mmHg
-    config = preset("default")
+    config = scene_config(scene, "default")
     rtol, atol = float(config.rtol), float(config.atol)
     print()
     print(
@@ -330,22 +319,23 @@ def section_scipy(scene, pump):
         f"beats from rest, rtol {rtol:g}, atol {atol:g} ('default')"
     )
 
-    # diffrax: run() for the answer, then its one jitted call for the time
+    # diffrax: run() for the answer, then its one solve_beats call for the time
     def run_once():
-        return run(scene, afterload=[SCIPY_AFTERLOAD], beats=SCIPY_BEATS)
+        return run(scene, afterload=[SCIPY_AFTERLOAD], beats=SCIPY_BEATS, pump=pump)
 
     first_run = first_call(run_once)
     v_diffrax = float(run_once().members[0].traces["volume"][-1])
-    circuits = bench_circuits(scene, pump, (head,))
 
     def simulate():
-        return _simulate(circuits, SCIPY_BEATS, 0.0, config)
+        return solve_beats(
+            scene, afterload=jnp.asarray([head]), beats=SCIPY_BEATS, pump=pump, config=config
+        )
 
     first_call(simulate)  # compiled by run() already: same static arguments
-    diffrax_steps = int(member_stats(_simulate(circuits, SCIPY_BEATS, 0.0, config))["steps"][0])
+    diffrax_steps = int(member_stats(simulate())["steps"][0])
 
     # scipy: the same circuit's field, flattened, jitted numpy-in/numpy-out
-    circuit = _circuit(scene, pump, head)
+    circuit = scene_circuit(scene, pump, head)
     y0, unravel = ravel_pytree(circuit.init())
     i_volume = int(unravel(jnp.arange(y0.size, dtype=y0.dtype))["volume"])  # its flat index
 
@@ -394,8 +384,8 @@ def section_scipy(scene, pump):
     y_tight = solve("DOP853", 1e-12, 1e-15)[0]
     v_tight = float(y_tight[i_volume])
     print(
-        f"   diffrax: {1e3 * t_diffrax:.2f} ms the jitted call ({diffrax_steps} steps in the last "
-        f"beat), {1e3 * t_run:.1f} ms the whole run() (first run() with compile: "
+        f"   diffrax: {1e3 * t_diffrax:.2f} ms the solve_beats call ({diffrax_steps} steps in the "
+        f"last beat), {1e3 * t_run:.1f} ms the whole run() (first run() with compile: "
         f"{first_run:.1f} s)"
     )
     print(
@@ -434,7 +424,7 @@ def main():
     header()
     jax.block_until_ready(jnp.ones(3) + 1.0)  # backend start-up out of the first timing
     scene = load_scene(SCENE).replace(bpm=BPM)
-    pump = load()
+    pump = load_pump()
     section_presets(scene, pump)
     section_batch(scene, pump)
     section_scipy(scene, pump)

@@ -25,10 +25,12 @@ import jax.numpy as jnp
 from cardiosoft._validate import _is_traced, check_positive, check_range
 from cardiosoft.units import mm
 
-__all__ = ["SHAPES", "CablePull"]
+__all__ = ["BPM_RANGE", "SHAPES", "CablePull"]
 
 SHAPES = ("linear", "smoothstep", "cosine")
 """The allowed values of :attr:`CablePull.shape`."""
+BPM_RANGE = (0.0, 300.0)
+"""Allowed beat rate (bpm), open at 0: (0, 300]."""
 
 
 def _profile(shape: str, s):
@@ -77,8 +79,8 @@ class CablePull(eqx.Module):
 
     @classmethod
     def from_bpm(cls, stroke, bpm, **kwargs) -> CablePull:
-        """Build from a rate in beats per minute, bpm in (0, 300]: ``period = 60 / bpm`` s."""
-        check_range("beat rate", bpm, "bpm", 0.0, 300.0, lo_open=True)
+        """Build from a rate in beats per minute (:data:`BPM_RANGE`): ``period = 60 / bpm`` s."""
+        check_range("beat rate", bpm, "bpm", *BPM_RANGE, lo_open=True)
         return cls(stroke, 60.0 / jnp.asarray(bpm), **kwargs)
 
     @property

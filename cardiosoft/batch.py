@@ -56,7 +56,6 @@ import numpy as np
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
 from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
-from cardiosoft.circulation import AtrialSource, Bench, Tube, Valve, WaterColumn, Windkessel3
 from cardiosoft.metrics import BeatMetrics, beat_metrics
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
@@ -126,39 +125,11 @@ def scene_circuit(scene: Scene, pump: PumpSurrogate, afterload=None) -> PumpCirc
         if scene.has("shell_viscoelasticity")
         else None
     )
-    if scene.afterload_type == "water_column":
-        column = WaterColumn(
-            scene.column_diameter,
-            scene.afterloads[0] if afterload is None else afterload,
-            rise=scene.has("column_rise"),
-            inertia=scene.has("column_inertia"),
-        )
-        tube = Tube(
-            scene.tube_length,
-            scene.tube_diameter,
-            loss_coefficient=scene.loss_coefficient,
-            inertia=scene.has("tube_inertia"),
-            resistance=scene.has("tube_resistance"),
-            minor_loss=scene.has("minor_loss"),
-        )
-        return PumpCircuit(
-            pump,
-            scene.omega,
-            actuation,
-            Bench(tube, column),
-            cable_friction=friction,
-            viscoelasticity=viscoelasticity,
-        )
-    rp, c, rd = scene.windkessel
-    r_in, r_out = scene.valve_resistance
     return PumpCircuit(
         pump,
         scene.omega,
         actuation,
-        Windkessel3(rp, c, rd, scene.venous_pressure),
-        outlet_valve=Valve(r_out, scene.valve_kind, scene.valve_smoothing),
-        inlet_valve=Valve(r_in, scene.valve_kind, scene.valve_smoothing),
-        preload=AtrialSource(scene.preload_pressure),
+        **scene.afterload.blocks(scene, scene.afterloads[0] if afterload is None else afterload),
         cable_friction=friction,
         viscoelasticity=viscoelasticity,
     )
@@ -222,14 +193,14 @@ class BeatSolution(eqx.Module):
 
 def _members(scene: Scene, omega, shortening, bpm_value, afterload) -> dict:
     """The member values, validated where concrete, broadcast to one batch axis."""
-    if scene.afterload_type == "water_column":
+    if scene.afterload.has_heads:
         if afterload is None:
             afterload = jnp.asarray(scene.afterloads)
         check_range("afterload", afterload, "mmHg", *RANGES["afterloads"], scale=mmHg)
     elif afterload is not None:
         raise ValueError(
-            f"afterload: scene {scene.name} has a {scene.afterload_type} afterload; the "
-            "afterload argument sets water-column heads"
+            f"afterload: scene {scene.name} has a {scene.afterload_type} afterload, which "
+            "has no column head to set"
         )
     else:
         afterload = jnp.nan
@@ -435,7 +406,7 @@ def solve_static(
     scene works, dynamic ones too (the paper's static SV beside the dynamic one).
     """
     scene = scene if isinstance(scene, Scene) else load_scene(scene)
-    if scene.afterload_type != "water_column":
+    if not scene.afterload.has_heads:
         raise ValueError(f"scene {scene.name}: quasi-static strokes need a water-column afterload")
     members = _members(scene, omega, shortening, None, afterload)
     pump = load() if pump is None else pump

@@ -447,6 +447,8 @@ class Windkessel4(AbstractAfterload):
 
 
 VALVE_KINDS = ("ideal", "smooth")
+VALVE_SMOOTHING = 0.5 * mmHg
+"""Default width w (Pa) of the smooth valve law, for a :class:`Valve` and a scene's valves."""
 
 
 class Valve(eqx.Module):
@@ -460,7 +462,7 @@ class Valve(eqx.Module):
 
     resistance: jax.Array = eqx.field(converter=jnp.asarray)
     kind: str = eqx.field(static=True, default="ideal")
-    smoothing: jax.Array = eqx.field(converter=jnp.asarray, default=0.1 * mmHg)
+    smoothing: jax.Array = eqx.field(converter=jnp.asarray, default=VALVE_SMOOTHING)
 
     def __check_init__(self):
         if self.kind not in VALVE_KINDS:

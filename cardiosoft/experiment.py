@@ -34,11 +34,10 @@ def configure(
         ("bpm", bpm, "bpm", "bpm"),
     ):
         if value is not None:
-            lo, hi = RANGES[field]
-            check_range(name, value, unit, lo, hi, lo_open=field == "bpm")
+            check_range(name, value, unit, *RANGES[field], lo_open=field == "bpm")
             changes[field] = float(value)
     if afterload is not None:
-        if scene.afterload_type != "water_column":
+        if not scene.afterload.has_heads:
             raise ValueError(
                 f"afterload: scene {scene.name} has a {scene.afterload_type} "
                 "afterload; --afterload sets water-column heads"
@@ -82,7 +81,7 @@ def run(
     scene = configure(
         scene, omega=omega, shortening=shortening, bpm=bpm, afterload=afterload, accuracy=accuracy
     )
-    if scene.afterload_type == "water_column":
+    if scene.afterload.has_heads:
         labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
     else:
         labels = [scene.name]
@@ -113,7 +112,7 @@ def sweep(
         )
     for omega, shortening in designs:
         configure(scene, omega=omega, shortening=shortening)  # validates each design
-    heads = scene.afterloads if scene.afterload_type == "water_column" else (None,)
+    heads = scene.afterloads if scene.afterload.has_heads else (None,)
     labels, omegas, shortenings, members_heads = [], [], [], []
     for omega, shortening in designs:
         for h in heads:
@@ -123,7 +122,7 @@ def sweep(
             shortenings.append(float(shortening))
             members_heads.append(h)
     members = {"omega": np.asarray(omegas), "shortening": np.asarray(shortenings)}
-    if scene.afterload_type == "water_column":
+    if scene.afterload.has_heads:
         members["afterload"] = np.asarray(members_heads)
     return _simulate(scene, labels, members, beats, pump)
 
@@ -134,7 +133,7 @@ def _simulate(scene: Scene, labels, members: dict, beats, pump) -> RunResult:
     if scene.static:
         static = solve_static(scene, **members, pump=pump)
         return RunResult(scene, member_results(labels, None, static))
-    if scene.afterload_type != "water_column":
+    if not scene.afterload.has_heads:
         dynamic = solve_beats(scene, **members, beats=beats, pump=pump)
         return RunResult(scene, member_results(labels, dynamic, None))
     # Compiling the dynamic solve takes seconds; the quasi-static strokes compile on a second

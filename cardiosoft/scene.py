@@ -27,30 +27,106 @@ import math
 import tomllib
 from importlib import resources
 from pathlib import Path
+from typing import ClassVar
 
 import jax
 
+from cardiosoft.actuation import BPM_RANGE, SHAPES
+from cardiosoft.circulation import (
+    VALVE_KINDS,
+    VALVE_SMOOTHING,
+    AtrialSource,
+    Bench,
+    Tube,
+    Valve,
+    WaterColumn,
+    Windkessel3,
+)
 from cardiosoft.pump import Domain
+from cardiosoft.solve import ACCURACY_PRESETS
 from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
 
-__all__ = ["EFFECTS", "RANGES", "SCENE_NAMES", "Scene", "load_scene"]
+__all__ = [
+    "AFTERLOADS",
+    "EFFECTS",
+    "RANGES",
+    "SCENE_NAMES",
+    "Scene",
+    "WaterColumnAfterload",
+    "Windkessel3Afterload",
+    "load_scene",
+]
 
-EFFECTS = {
-    "water_column": (
+SHELL_EFFECTS = ("cable_friction", "shell_viscoelasticity")
+"""Effects of the pump itself, allowed with any afterload."""
+
+
+@dataclasses.dataclass(frozen=True)
+class WaterColumnAfterload:
+    """The paper's bench (section II-F): a silicone tube to an open water column.
+
+    The members of a run differ in the column head (Pa), one per entry of the scene's
+    ``afterload.pressures_mmHg``.
+    """
+
+    tag: ClassVar[str] = "water_column"
+    effects: ClassVar[tuple[str, ...]] = (
         "column_rise",
         "column_inertia",
         "tube_inertia",
         "tube_resistance",
         "minor_loss",
-        "cable_friction",
-        "shell_viscoelasticity",
-    ),
-    "windkessel3": ("valves", "preload", "cable_friction", "shell_viscoelasticity"),
-}
+    )
+    has_heads: ClassVar[bool] = True
+
+    def blocks(self, scene: Scene, head) -> dict:
+        """The :class:`~cardiosoft.circuit.PumpCircuit` arguments of the bench at ``head``."""
+        column = WaterColumn(
+            scene.column_diameter,
+            head,
+            rise=scene.has("column_rise"),
+            inertia=scene.has("column_inertia"),
+        )
+        tube = Tube(
+            scene.tube_length,
+            scene.tube_diameter,
+            loss_coefficient=scene.loss_coefficient,
+            inertia=scene.has("tube_inertia"),
+            resistance=scene.has("tube_resistance"),
+            minor_loss=scene.has("minor_loss"),
+        )
+        return {"afterload": Bench(tube, column)}
+
+
+@dataclasses.dataclass(frozen=True)
+class Windkessel3Afterload:
+    """A 3-element Windkessel (Rp, C, Rd) behind an outlet valve, filled from an atrial source
+    through an inlet valve. A run has one member; ``head`` is not used."""
+
+    tag: ClassVar[str] = "windkessel3"
+    effects: ClassVar[tuple[str, ...]] = ("valves", "preload")
+    has_heads: ClassVar[bool] = False
+
+    def blocks(self, scene: Scene, head=None) -> dict:
+        """The :class:`~cardiosoft.circuit.PumpCircuit` arguments of the circulation."""
+        rp, c, rd = scene.windkessel
+        r_in, r_out = scene.valve_resistance
+        return {
+            "afterload": Windkessel3(rp, c, rd, scene.venous_pressure),
+            "outlet_valve": Valve(r_out, scene.valve_kind, scene.valve_smoothing),
+            "inlet_valve": Valve(r_in, scene.valve_kind, scene.valve_smoothing),
+            "preload": AtrialSource(scene.preload_pressure),
+        }
+
+
+AFTERLOADS = {kind.tag: kind() for kind in (WaterColumnAfterload, Windkessel3Afterload)}
+"""The afterloads a scene may name (``afterload.type``): a tagged union. Adding one means a
+class here and its numbers in :data:`_NUMBERS` (``when=`` its tag); nothing else branches on
+the type."""
+EFFECTS = {tag: kind.effects + SHELL_EFFECTS for tag, kind in AFTERLOADS.items()}
+"""The effects each afterload type allows."""
 SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")
-ACCURACY = ("fast", "default", "reference")
-SHAPES = ("linear", "smoothstep", "cosine")
-VALVE_KINDS = ("ideal", "smooth")
+ACCURACY = ACCURACY_PRESETS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,7 +155,7 @@ class Scene:
     venous_pressure: float = 0.0
     preload_pressure: float = math.nan
     valve_kind: str = "smooth"
-    valve_smoothing: float = 0.5 * mmHg
+    valve_smoothing: float = VALVE_SMOOTHING
     valve_resistance: tuple[float, float] = (math.nan, math.nan)  # inlet, outlet (SI)
     cable_friction: float = 0.0
     viscoelastic_ratio: float = 0.0
@@ -90,6 +166,11 @@ class Scene:
 
     def has(self, effect: str) -> bool:
         return effect in self.effects
+
+    @property
+    def afterload(self) -> WaterColumnAfterload | Windkessel3Afterload:
+        """The afterload's kind (:data:`AFTERLOADS`): what it allows and how it is built."""
+        return AFTERLOADS[self.afterload_type]
 
     def replace(self, **changes) -> Scene:
         """A copy with ``changes`` applied (already in SI), validated like a file."""
@@ -128,7 +209,7 @@ _NUMBERS = (
     # field, "section.key", unit, lo, hi, lo_open, scale; then default / index / when
     _Number("omega", "design.omega", "", *_DOMAIN.omega),
     _Number("shortening", "design.shortening", "", *_DOMAIN.shortening),
-    _Number("bpm", "actuation.bpm", "bpm", 0.0, 300.0, True),
+    _Number("bpm", "actuation.bpm", "bpm", *BPM_RANGE, True),
     _Number("pull_fraction", "actuation.pull_fraction", "", 0.0, 1.0, True, default=0.5),
     _Number("hold_fraction", "actuation.hold_fraction", "", 0.0, 1.0, default=0.0),
     _Number("release_fraction", "actuation.release_fraction", "", 0.0, 1.0, True, default=0.5),
@@ -153,7 +234,7 @@ _NUMBERS = (
     _Number("preload_pressure", "preload.pressure_mmHg", "mmHg", 0.0, 50.0, False, mmHg,
             when="effect:preload"),
     _Number("valve_smoothing", "valves.smoothing_mmHg", "mmHg", 0.0, 10.0, True, mmHg,
-            default=0.5, when="effect:valves"),
+            default=VALVE_SMOOTHING / mmHg, when="effect:valves"),
     _Number("valve_resistance", "valves.inlet_resistance_mmHg_s_per_ml", "mmHg s/ml", 0.0,
             10.0, True, _R, index=0, when="effect:valves"),
     _Number("valve_resistance", "valves.outlet_resistance_mmHg_s_per_ml", "mmHg s/ml", 0.0,
@@ -356,7 +437,7 @@ def _validated(scene: Scene) -> Scene:
                     f"{where} key '{key}' = {u:g} {spec.unit}".rstrip()
                     + f": allowed {spec.allowed()}"
                 )
-    if scene.afterload_type == "water_column" and not scene.afterloads:
+    if scene.afterload.has_heads and not scene.afterloads:
         raise ValueError(
             f"{where} key 'afterload.pressures_mmHg' is empty: allowed a non-empty "
             "list of numbers in [0, 150] mmHg"
@@ -383,7 +464,7 @@ def _validated(scene: Scene) -> Scene:
             f"{where} a Windkessel scene needs the effects 'valves' and 'preload' "
             "(the pump fills from the atrium through the inlet valve)"
         )
-    if scene.static and scene.afterload_type != "water_column":
+    if scene.static and not scene.afterload.has_heads:
         raise ValueError(f"{where} a static scene needs a water_column afterload")
     return scene
 

@@ -24,7 +24,11 @@ OUTPUT_FILES = ("summary.json", "traces.csv", "figure.png")
 
 
 def _parser() -> argparse.ArgumentParser:
-    from cardiosoft.solve import ACCURACY_PRESETS
+    from cardiosoft.scene import ACCURACY, RANGES, SCENE_NAMES
+
+    def allowed(field, left="["):
+        lo, hi = RANGES[field]
+        return f"{left}{lo:g}, {hi:g}]"
 
     p = argparse.ArgumentParser(
         prog="python -m cardiosoft.simulate",
@@ -33,23 +37,25 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--scene",
         default="bench-dynamic",
-        help="shipped scene (bench-static, bench-dynamic, lv-systemic, rv-pulmonary) "
-        "or a scene .toml file (default: bench-dynamic)",
+        help=f"shipped scene ({', '.join(SCENE_NAMES)}) or a scene .toml file "
+        "(default: bench-dynamic)",
     )
-    p.add_argument("--bpm", type=float, help="beats per minute, (0, 300] (default: the scene's)")
-    p.add_argument("--omega", type=float, help="helix parameter Omega, [0, 6]")
-    p.add_argument("--shortening", type=float, help="cable shortening C, [0, 0.65]")
+    p.add_argument(
+        "--bpm", type=float, help=f"beats per minute, {allowed('bpm', '(')} (default: the scene's)"
+    )
+    p.add_argument("--omega", type=float, help=f"helix parameter Omega, {allowed('omega')}")
+    p.add_argument("--shortening", type=float, help=f"cable shortening C, {allowed('shortening')}")
     p.add_argument(
         "--afterload",
         type=float,
         nargs="+",
         metavar="MMHG",
-        help="water-column head(s) at the pump base in mmHg, [0, 150]",
+        help=f"water-column head(s) at the pump base in mmHg, {allowed('afterloads')}",
     )
     p.add_argument("--beats", type=int, help="run exactly this many beats (default: until steady)")
     p.add_argument(
         "--accuracy",
-        choices=ACCURACY_PRESETS,
+        choices=ACCURACY,
         help="solver preset (default: the scene's)",
     )
     p.add_argument(
@@ -98,7 +104,7 @@ _CIRCULATION_COLUMNS = (
 
 
 def _table(records, scene, paper) -> str:
-    columns = _BENCH_COLUMNS if scene.afterload_type == "water_column" else _CIRCULATION_COLUMNS
+    columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
     head = [c[0] for c in columns]
     units = [c[1] for c in columns]
     rows = []
@@ -227,7 +233,7 @@ def main(argv=None) -> int:
         )
         if args.beats is not None:
             check_range("beats", args.beats, "beats", 1, 500)
-        if args.compare_paper and scene.afterload_type != "water_column":
+        if args.compare_paper and not scene.afterload.has_heads:
             raise ValueError(f"--compare-paper: scene {scene.name} is not the paper's bench")
         what = (
             "quasi-static pull, one root find per cable position"
