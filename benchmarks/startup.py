@@ -8,7 +8,7 @@ solve itself takes about 30 ms). This script prints
 
 1. the wall time of N fresh ``python -m cardiosoft.simulate --bpm 60 --quiet`` processes (best
    and median) and its ratio to the 15 s target;
-2. the import time of a fresh process (``import jax`` and ``cardiosoft.experiment``);
+2. the import time of a fresh process (``import jax`` and ``cardiosoft``);
 3. JAX's own log of one run (``JAX_LOG_COMPILES``): tracing, lowering and XLA compilation per
    jitted function, largest first. The quasi-static strokes compile on a second thread while
    the dynamic solve traces and compiles, so the entries overlap and do not add up to the wall
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
     )
 
     imports = [
-        _wall([sys.executable, "-c", "import jax; import cardiosoft.experiment"])
+        _wall([sys.executable, "-c", "import jax; import cardiosoft"])
         for _ in range(args.repeat)
     ]
     print(

@@ -38,8 +38,17 @@ pass the loop). The derivative is that of the discretisation taken (diffrax stop
 through step-size adaptation) and of the beats actually run: with a fixed number of beats it is
 the exact derivative of a smooth function; at the steady state the beat count is piecewise
 constant in the parameters, and the derivative agrees with finite differences of converged runs
-to about the steady tolerance. The peak force is a maximum over samples: its derivative is that
-of the largest sample (one-sided where two samples tie).
+to about the steady tolerance: measured at Omega 4, C 0.4, 60 mmHg with the default preset,
+d SV / d C = 58.16 ml against central differences of independently converged runs of 57.90 to
+58.16 ml (steps 1e-4 to 1e-2 in C), within 0.5 %; with the beats fixed and equal steps, to
+1e-4 or better (``tests/test_batch.py``).
+
+Which metrics are smooth: the mechanical and hydraulic work and the stroke work are quadratures
+of the samples, smooth in every parameter; the efficiency is their ratio. The stroke volume
+(EDV - ESV, the largest minus the smallest volume sample) and the peak force (the largest force
+sample of the pull) are extrema over samples: their derivative is that of the extreme sample,
+exact while the same sample stays the extreme and one-sided where two samples tie (a kink in the
+parameter, not a jump; the samples are dense enough that it moves by one sample at a time).
 """
 
 from __future__ import annotations
