@@ -68,7 +68,7 @@ from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
 from cardiosoft.metrics import BeatMetrics, beat_metrics
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
-from cardiosoft.solve import SolverConfig, periodic_beats, preset
+from cardiosoft.solve import SolverConfig, periodic_beats, preset, shoot_periodic
 from cardiosoft.static import column_stiffness, static_strokes
 from cardiosoft.units import RHO_WATER, G, bpm, mmHg
 
@@ -88,6 +88,10 @@ PULL_SAMPLES = 201
 SAMPLES_PER_BEAT = PULL_SAMPLES + 200
 """Samples of one beat: the pull phase (its end on the grid), then 200 over the rest."""
 SAVE_MODES = ("traces", "metrics")
+STEADY_METHODS = ("beats", "shooting")
+"""How the periodic steady state is reached: beat after beat, or by Newton shooting."""
+GUESS_BEATS = 3
+"""Beats from rest before Newton shooting starts from their end."""
 MEMBER_FIELDS = ("omega", "shortening", "bpm", "afterload")
 """What may differ between the members of one batch."""
 # Scene fields that are numbers (or tuples of numbers) of the physics: array leaves of the solve.
@@ -161,7 +165,8 @@ class BeatSolution(eqx.Module):
       ``None`` with ``save="metrics"``.
     - ``beats``: beats integrated; ``residual``: the cycle-to-cycle change of the last beat
       (ml, ml/s or mmHg); ``volume_drift``: the largest relative change of the total fluid
-      volume; ``result``: diffrax's result; ``num_steps``: solver steps of the last beat.
+      volume; ``result``: diffrax's result; ``num_steps``: solver steps of the last beat;
+      ``newton_steps``: Newton iterations of ``steady="shooting"`` (0 otherwise).
     - ``steady_tol`` (static): the tolerance ``residual`` is held to; 0 for a fixed number of
       beats, which are steady by definition.
     """
@@ -174,6 +179,7 @@ class BeatSolution(eqx.Module):
     volume_drift: jax.Array
     result: diffrax.RESULTS
     num_steps: jax.Array
+    newton_steps: jax.Array
     steady_tol: float = eqx.field(static=True)
 
     @property
@@ -292,18 +298,14 @@ def _metrics(circuit: PumpCircuit, ts, ys):
 
 
 @eqx.filter_jit
-def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save: str):
+def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save: str, steady):
     def one(member):
         values = {k: v for k, v in member.items() if k != "afterload"}
         scene = dataclasses.replace(structure, **(numbers | values))
         circuit = scene_circuit(scene, pump, member["afterload"])
         ts = _save_times(circuit.actuation)
         observe = None if save == "traces" else (lambda ts, ys: _metrics(circuit, ts, ys)[1])
-        out = periodic_beats(
-            circuit,
-            circuit.init(),
-            circuit.actuation.period,
-            ts,
+        common = dict(
             jump_ts=circuit.actuation.kink_times(1),
             total_volume=circuit.total_volume,
             max_beats=max_beats,
@@ -311,6 +313,14 @@ def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save:
             config=config,
             observe=observe,
         )
+        period = circuit.actuation.period
+        if steady == "shooting":
+            out = shoot_periodic(
+                circuit, circuit.init(), period, ts, closed=circuit.preload is None,
+                guess_beats=min(GUESS_BEATS, max_beats), **common,
+            )
+        else:
+            out = periodic_beats(circuit, circuit.init(), period, ts, **common)
         if save == "traces":
             signals, metrics = _metrics(circuit, ts, out.observed)
             traces = {"time": ts, **_flat_states(out.observed), **signals}
@@ -337,6 +347,7 @@ def solve_beats(
     afterload=None,
     beats: int | None = None,
     save: str = "traces",
+    steady: str = "beats",
     pump: PumpSurrogate | None = None,
     config: SolverConfig | None = None,
 ) -> BeatSolution:
@@ -351,6 +362,11 @@ def solve_beats(
     - ``beats``: run exactly this many beats, in [1, 500] (default: until steady, at most the
       scene's ``max_beats``).
     - ``save``: ``"traces"`` or ``"metrics"`` (:data:`SAVE_MODES`).
+    - ``steady``: ``"beats"``, beat after beat from rest until the cycle-to-cycle change is
+      below the scene's ``steady_tol``; or ``"shooting"``, :data:`GUESS_BEATS` beats, then
+      Newton's method on the one-beat map (:func:`cardiosoft.solve.shoot_periodic`), whose
+      derivative is that of the periodic orbit itself (implicit function theorem), with beat
+      after beat as the fallback. Ignored with a fixed number of ``beats``.
     - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate`; default the shipped one.
     - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default :func:`default_config`.
 
@@ -362,6 +378,8 @@ def solve_beats(
         raise ValueError(f"scene {scene.name} is static: use solve_static")
     if save not in SAVE_MODES:
         raise ValueError(f"save = {save!r}: allowed {', '.join(SAVE_MODES)}")
+    if steady not in STEADY_METHODS:
+        raise ValueError(f"steady = {steady!r}: allowed {', '.join(STEADY_METHODS)}")
     if beats is not None:
         if isinstance(beats, bool) or not isinstance(beats, int | np.integer):
             raise ValueError(f"beats = {beats!r}: allowed a whole number in [1, 500]")
@@ -371,8 +389,9 @@ def solve_beats(
     config = default_config(scene) if config is None else config
     max_beats, tol = (int(beats), 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
     structure, numbers = _split(scene)
+    method = "beats" if beats is not None else steady
     metrics, traces, out = _solve(
-        structure, numbers, pump, _shard(members), max_beats, tol, config, save
+        structure, numbers, pump, _shard(members), max_beats, tol, config, save, method
     )
     return BeatSolution(
         members=members,
@@ -383,6 +402,7 @@ def solve_beats(
         volume_drift=out.volume_drift,
         result=out.result,
         num_steps=out.num_steps,
+        newton_steps=out.newton_steps,
         steady_tol=float(tol),
     )
 

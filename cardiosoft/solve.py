@@ -34,6 +34,7 @@ __all__ = [
     "periodic_beats",
     "preset",
     "respond",
+    "shoot_periodic",
 ]
 
 
@@ -248,6 +249,8 @@ class Beats(eqx.Module):
     a leading time axis)."""
     y0: dict
     """State at the start of the last beat."""
+    y_end: dict
+    """State at the end of the last beat."""
     beats: jax.Array
     """Number of beats integrated."""
     residual: jax.Array
@@ -258,6 +261,8 @@ class Beats(eqx.Module):
     """diffrax's result of the last solve (``successful`` unless a beat failed)."""
     num_steps: jax.Array
     """Solver steps of the last beat."""
+    newton_steps: jax.Array
+    """Newton iterations of :func:`shoot_periodic` (0 beat after beat)."""
 
 
 def _in_phase(s, y, args):
@@ -348,7 +353,105 @@ def periodic_beats(
         diffrax.RESULTS.successful,
         (jnp.array(0), y0),
     )
-    _, observed, beats, residual, drift, result, (steps, y_start) = jax.lax.while_loop(
+    y_end, observed, beats, residual, drift, result, (steps, y_start) = jax.lax.while_loop(
         cond, body, carry
     )
-    return Beats(ts, observed, y_start, beats, residual, drift, result, steps)
+    return Beats(ts, observed, y_start, y_end, beats, residual, drift, result, steps, jnp.array(0))
+
+
+def shoot_periodic(
+    field,
+    y0,
+    period,
+    ts,
+    *,
+    jump_ts,
+    total_volume,
+    closed: bool,
+    guess_beats: int,
+    max_beats: int,
+    tol,
+    config: SolverConfig | None = None,
+    observe: Callable[[jax.Array, dict], Any] | None = None,
+    max_newton: int = 8,
+) -> Beats:
+    """The periodic steady state by Newton shooting on the one-beat map, then its last beat.
+
+    1. ``guess_beats`` beats from ``y0`` (beat after beat; fewer if already steady): the guess.
+    2. Newton's method (``optimistix.root_find``) on ``u -> Phi(u) - u``, ``Phi`` the state one
+       beat later, in the periodic states of :data:`PERIODIC_SCALES` divided by their scales
+       (ml, ml/s, mmHg). Its Jacobian comes from forward-mode derivatives of the beat (a 2-5
+       dimensional state), and the root is differentiated implicitly (``ImplicitAdjoint``):
+       ``jax.jvp``/``jacfwd`` of anything downstream see ``dy*/dtheta = -(dPhi/dy - I)^-1
+       dPhi/dtheta``, not the derivative of the beats that led there. ``closed``: the circuit
+       conserves its total fluid volume (no preload), so the orbits form a family, one per total;
+       the pump volume is then eliminated, ``V = total_volume(y0) - (total_volume(y) - V)``.
+       Accumulators (:data:`ACCUMULATORS`) keep their guessed values: nothing depends on them.
+    3. From the orbit (or, if Newton failed, from the guess), beat after beat as in
+       :func:`periodic_beats` until the cycle-to-cycle change is below ``tol``, at most
+       ``max_beats``: at a converged orbit that is one beat, whose samples ``observe`` sees;
+       otherwise beat after beat is the fallback, and ``residual`` says how it ended.
+
+    ``beats`` counts the beats of steps 1 and 3; ``newton_steps`` the iterations of step 2 (each
+    costs about one beat per state component more). The arguments are those of
+    :func:`periodic_beats`.
+    """
+    config = preset("default") if config is None else config
+    v_ref = total_volume(y0)
+    guess = periodic_beats(
+        field, y0, period, ts, jump_ts=jump_ts, total_volume=total_volume,
+        max_beats=guess_beats, tol=tol, config=config, observe=lambda ts, ys: (),
+    )
+    flat, treedef = jax.tree_util.tree_flatten_with_path(guess.y_end)
+    names = [path[-1].key for path, _ in flat]
+    unknown = [
+        i for i, name in enumerate(names)
+        if name in PERIODIC_SCALES and not (closed and name == "volume")
+    ]
+    scales = jnp.asarray([PERIODIC_SCALES[names[i]] for i in unknown])
+    template = [leaf for _, leaf in flat]
+
+    def to_unknowns(y):
+        leaves = jax.tree_util.tree_leaves(y)
+        return jnp.stack([leaves[i] for i in unknown]) / scales
+
+    def to_state(u):
+        leaves = list(template)
+        for k, i in enumerate(unknown):
+            leaves[i] = u[k] * scales[k]
+        y = jax.tree_util.tree_unflatten(treedef, leaves)
+        if closed:
+            others = total_volume({**y, "volume": jnp.zeros_like(y["volume"])})
+            y = {**y, "volume": v_ref - others}
+        return y
+
+    def beat_map(u, args):
+        sol = integrate(
+            _in_phase, to_state(u), 0.0, 1.0, args=(field, period),
+            jump_ts=jump_ts / period, config=config,
+        )
+        y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
+        return to_unknowns(y_end) - u
+
+    # Newton's own tolerance, in the scaled units: well inside the steady tolerance
+    newton = optx.Newton(rtol=1e-8, atol=0.1 * tol + 1e-9)
+    u0 = to_unknowns(guess.y_end)
+    root = optx.root_find(beat_map, newton, u0, max_steps=max_newton, throw=False)
+    converged = optx.RESULTS.successful == root.result
+    finite = jnp.all(jnp.isfinite(root.value))
+    start = jnp.where(converged & finite, root.value, u0)
+    final = periodic_beats(
+        field, to_state(start), period, ts, jump_ts=jump_ts, total_volume=total_volume,
+        max_beats=max_beats, tol=tol, config=config, observe=observe,
+    )
+    drift = jnp.maximum(
+        jnp.maximum(guess.volume_drift, final.volume_drift),
+        jnp.abs(total_volume(final.y_end) - v_ref) / jnp.abs(v_ref),
+    )
+    result = diffrax.RESULTS.where(
+        diffrax.is_successful(guess.result), final.result, guess.result
+    )
+    return Beats(
+        ts, final.observed, final.y0, final.y_end, guess.beats + final.beats, final.residual,
+        drift, result, final.num_steps, root.stats["num_steps"],
+    )
