@@ -24,7 +24,8 @@ PARAMETER_MEANINGS = {
     "log K [N/m] at Omega 4 and its slope in (Omega - 4)/4",
     "softening_exponent": "g - 0.5 = softplus(p): post-buckling decay of the force",
     "log_chamber_elastance": "log E_u [Pa/m^3]: chamber stiffness of the unfolded shell at P = 0",
-    "fold_compliance": "kappa = softplus(p): E = E_u exp(-kappa EF_0), folding softens",
+    "fold_compliance": "kappa = softplus(p): E = E_u exp(-kappa EF_0), folding softens; "
+    "held, not fitted (see held)",
     "log_stiffening": "log beta [1/m^3]: P = (E/beta) sinh(beta (V - V_eq))",
     "three_fold_boundary": "(Omega, C) corner of the three-fold region (midpoints in the data)",
     "three_fold_width": "transition widths of the three-fold indicator in Omega and C",
@@ -130,8 +131,10 @@ def fit(data: datasets.PaperData, progress=print):
             "column_diameter_mm": float(rig.column_diameter / mm),
             "cable_friction_exponent": float(rig.cable_friction),
             "fem_pressure_mmHg": float(rig.fem_pressure / mmHg),
-            "note": "fitted with the surrogate: the paper does not give them",
+            "note": "not given in the paper: the cable friction and the FEM pressure fitted "
+            "with the surrogate, the column diameter held (see held)",
         },
+        "held": {name: dict(entry) for name, entry in pipeline.HELD.items()},
         "metrics": m,
         "stage2_loss": {"start": float(history[0]), "end": float(history[-1])},
     }

@@ -177,7 +177,7 @@ def format_report(m: dict, data: datasets.PaperData, rig_card: dict) -> str:
     add("  42 % vs 12 % volume drop at equal strain energy 1 J: not modelled (apex rotation vs")
     add("  axial displacement loads, section II-A, are not cable pulls)")
     add("")
-    add("Rig parameters fitted with the surrogate (not given in the paper):")
+    add("Rig parameters not given in the paper (fitted with the surrogate; the column held):")
     add(
         f"  water-column diameter {rig_card['column_diameter_mm']:.1f} mm; cable friction "
         f"exp(mu theta) = {np.exp(rig_card['cable_friction_exponent']):.2f}; FEM efficiency "

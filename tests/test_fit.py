@@ -33,6 +33,35 @@ HEADLINE = (
     "mech_work_J",
 )
 
+# How closely a refit must reproduce the card (issue #14), from the fit's own sensitivity to
+# round-off. Stage 1 (Levenberg-Marquardt to rtol 1e-9) converges: refitted on another CPU its
+# metrics moved by 5e-9 at most, so 1e-6. Stage 2 stops after a fixed 3000 Adam steps (the
+# last at a learning rate of 3e-4), where round-off leaves it: 61 refits on one CPU
+# (2026-12-01) with the bench targets or the stage-1 parameters perturbed by 1e-9 (relative)
+# spread over a range of 1.6-2.0e-4 in the static SVs, 1.6-4.7e-3 in the peak forces and
+# 4.3-5.4e-3 in the works (relative, per afterload), and the card's values lie inside. Each
+# tolerance is 1.5 times that range (2 significant digits up; relative for the metrics and
+# the rig, absolute for the raw parameters); the round-off refits used at most 0.47 of it.
+# `python -m fit.roundoff` measures the ranges again (after a change of the fit, ~5 min).
+# A real change of the fit still fails it. Refits with one bench datum changed, largest
+# deviation / tolerance at 30, 60, 90 mmHg: a static SV +0.1 ml (the paper's SD 1.2-2.6 ml)
+# 4.1, 7.3, 12.6; a peak force +1 N 2.9, 2.0, 1.4, +0.5 N 1.7, 0.9, 0.9. The works are fitted
+# at 4 % and pass within Adam's scatter: an efficiency +0.003 gives 1.1, 0.6, 0.6, a dynamic
+# SV +0.5 ml 0.7, 0.2, 0.5 (measured 2026-12-01).
+REFIT_STAGE1_REL = 1e-6
+REFIT_REL = {  # headline metrics of stage 2, per afterload
+    "static_sv_ml": [2.9e-4, 3.1e-4, 2.5e-4],
+    "peak_force_N": [7.1e-3, 2.5e-3, 5.3e-3],
+    "mech_work_J": [7.1e-3, 6.5e-3, 8.2e-3],
+}
+REFIT_RIG_REL = {"cable_friction_exponent": 0.030, "fem_pressure_mmHg": 0.066}
+REFIT_PARAMETER_ABS = {  # raw stage-2 parameters of the pump
+    "log_stiffness": [0.074, 0.036],
+    "softening_exponent": 0.091,
+    "log_chamber_elastance": 1.8e-3,
+    "log_stiffening": 8.4e-4,
+}
+
 
 @pytest.fixture(scope="module")
 def data():
@@ -114,6 +143,24 @@ def test_rig_round_trips_through_the_card(card):
     assert float(rig.fem_pressure) / 133.322387415 == pytest.approx(
         card["rig"]["fem_pressure_mmHg"], rel=1e-12
     )
+
+
+def test_card_states_what_the_fit_holds(card):
+    """The held parameters (issue #14): in the card as the fit writes them, and in the weights."""
+    assert card["held"] == json.loads(json.dumps(pipeline.HELD))
+    held = card["held"]
+    assert float(load().fold_compliance) == held["fold_compliance"]["raw"]
+    assert float(jax.nn.softplus(held["fold_compliance"]["raw"])) == pytest.approx(
+        held["fold_compliance"]["kappa"], rel=1e-15
+    )
+    assert card["rig"]["column_diameter_mm"] == held["column_diameter_mm"]["value"]
+    # stage 2 starts from the held values and frees neither
+    assert float(pipeline.mechanics_start(load()).fold_compliance) == held["fold_compliance"]["raw"]
+    rig = fitting.rig_from_card(card)
+    assert float(pipeline.Rig().column_diameter) == float(rig.column_diameter)
+    assert "fold_compliance" not in pipeline.MECHANICS_FIELDS
+    assert "log_column_diameter" not in pipeline.RIG_FIELDS
+    assert "held, not fitted" in card["parameters"]["fold_compliance"]
 
 
 def test_card_records_the_data_it_was_fitted_on(card):
@@ -244,20 +291,46 @@ def refit_blind(data):
     return fitting.fit(blind, progress=lambda _msg: None)
 
 
+def _assert_within(actual, expected, tol, key, relative):
+    """Elementwise ``|actual - expected| <= tol`` (times ``|expected|`` if ``relative``)."""
+    actual, expected = np.atleast_1d(actual), np.atleast_1d(expected)
+    bound = np.broadcast_to(tol, expected.shape) * (np.abs(expected) if relative else 1.0)
+    deviation = np.abs(actual - expected)
+    assert actual.shape == expected.shape and np.all(deviation <= bound), (
+        f"{key}: refit {actual.tolist()} against the card's {expected.tolist()}, deviation "
+        f"{deviation.tolist()} beyond {bound.tolist()}"
+    )
+
+
 @pytest.mark.slow
 def test_refit_reproduces_the_shipped_card(refit, card):
+    """Tolerances: REFIT_* above, from the fit's own round-off sensitivity (issue #14)."""
     model, _rig, new_card = refit
     for key in HEADLINE:
-        _assert_same(new_card["metrics"][key], card["metrics"][key], key, 1e-3)
-    for key in ("column_diameter_mm", "cable_friction_exponent", "fem_pressure_mmHg"):
-        assert new_card["rig"][key] == pytest.approx(card["rig"][key], rel=1e-3), key
+        if key in REFIT_REL:
+            _assert_within(new_card["metrics"][key], card["metrics"][key], REFIT_REL[key], key,
+                           relative=True)
+        else:
+            _assert_same(new_card["metrics"][key], card["metrics"][key], key, REFIT_STAGE1_REL)
+    for key, rel in REFIT_RIG_REL.items():
+        _assert_within(new_card["rig"][key], card["rig"][key], rel, key, relative=True)
+    # the held values are kept exactly
+    assert new_card["held"] == card["held"]
+    assert new_card["rig"]["column_diameter_mm"] == card["rig"]["column_diameter_mm"]
     assert new_card["data_sha256"] == card["data_sha256"]
     assert new_card["held_out"] == card["held_out"]
     # the refit model is the shipped one (same data, deterministic fit)
     shipped = load()
-    for a, b in zip(jax.tree_util.tree_leaves(eqx.filter(model, eqx.is_array)),
-                    jax.tree_util.tree_leaves(eqx.filter(shipped, eqx.is_array)), strict=True):
+    for field in REFIT_PARAMETER_ABS:
+        _assert_within(getattr(model, field), getattr(shipped, field), REFIT_PARAMETER_ABS[field],
+                       field, relative=False)
+    others = [f.name for f in dataclasses.fields(shipped) if f.name not in REFIT_PARAMETER_ABS]
+    for a, b in zip(jax.tree_util.tree_leaves(eqx.filter([getattr(model, f) for f in others],
+                                                         eqx.is_array)),
+                    jax.tree_util.tree_leaves(eqx.filter([getattr(shipped, f) for f in others],
+                                                         eqx.is_array)), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-3, atol=1e-6)
+    assert float(model.fold_compliance) == float(shipped.fold_compliance)  # held
 
 
 @pytest.mark.slow
