@@ -167,8 +167,8 @@ class BeatSolution(eqx.Module):
       (ml, ml/s or mmHg); ``volume_drift``: the largest relative change of the total fluid
       volume; ``result``: diffrax's result; ``num_steps``: solver steps of the last beat;
       ``newton_steps``: Newton iterations of ``steady="shooting"`` (0 otherwise).
-    - ``steady_tol`` (static): the tolerance ``residual`` is held to; 0 for a fixed number of
-      beats, which are steady by definition.
+    - ``steady_tol`` (static): the scene's tolerance ``residual`` is held to, also with a fixed
+      number of beats (``fixed_beats``), which may end before the steady state.
     """
 
     members: dict
@@ -181,6 +181,7 @@ class BeatSolution(eqx.Module):
     num_steps: jax.Array
     newton_steps: jax.Array
     steady_tol: float = eqx.field(static=True)
+    fixed_beats: bool = eqx.field(static=True, default=False)
 
     @property
     def succeeded(self) -> jax.Array:
@@ -189,8 +190,9 @@ class BeatSolution(eqx.Module):
 
     @property
     def steady(self) -> jax.Array:
-        """Per member: at its periodic steady state (or run for the fixed number of beats)."""
-        return (self.residual <= self.steady_tol) if self.steady_tol > 0 else self.beats > 0
+        """Per member: at its periodic steady state, the last beat's cycle-to-cycle change within
+        the scene's tolerance (also when a fixed number of beats was asked for)."""
+        return self.residual <= self.steady_tol
 
     def message(self, i: int) -> str:
         """Member ``i`` in words: ``"ok"``, not steady, or why the solver failed."""
@@ -201,7 +203,8 @@ class BeatSolution(eqx.Module):
         if not bool(self.steady[i]):
             return (
                 f"not steady after {beats} beats (cycle change {float(self.residual[i]):.3g} > "
-                f"{self.steady_tol:g})"
+                f"{self.steady_tol:g}): a transient, not the periodic steady state"
+                + ("" if self.fixed_beats else "; try steady='shooting' (--steady shooting)")
             )
         return "ok"
 
@@ -403,7 +406,8 @@ def solve_beats(
         result=out.result,
         num_steps=out.num_steps,
         newton_steps=out.newton_steps,
-        steady_tol=float(tol),
+        steady_tol=float(scene.steady_tol),
+        fixed_beats=beats is not None,
     )
 
 

@@ -61,6 +61,7 @@ def run(
     afterload=None,
     beats=None,
     accuracy=None,
+    steady="beats",
     pump: PumpSurrogate | None = None,
 ) -> RunResult:
     """Simulate a scene; the Python twin of ``python -m cardiosoft.simulate``.
@@ -73,10 +74,14 @@ def run(
     - ``afterload``: column head(s) in mmHg, [0, 150] (water-column scenes).
     - ``beats``: run exactly this many beats instead of stopping at the steady state.
     - ``accuracy``: "fast", "default" or "reference".
+    - ``steady``: "beats" (beat after beat) or "shooting" (Newton shooting on the one-beat map,
+      robust at high rates); see :func:`cardiosoft.batch.solve_beats`.
     - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate` (default: the shipped one).
 
-    **Returns:** a :class:`~cardiosoft.results.RunResult`, one member per afterload. Bad input
-    raises ``ValueError`` naming the parameter.
+    **Returns:** a :class:`~cardiosoft.results.RunResult`, one member per afterload. Each member
+    says whether it can be trusted: ``ok`` (solved, at its periodic steady state) and ``flags``
+    (outside the surrogate's fitted range, a cable that would push, a metric not meaningful).
+    Bad input raises ``ValueError`` naming the parameter.
     """
     scene = configure(
         scene, omega=omega, shortening=shortening, bpm=bpm, afterload=afterload, accuracy=accuracy
@@ -85,7 +90,7 @@ def run(
         labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
     else:
         labels = [scene.name]
-    return _simulate(scene, labels, {}, beats, pump)
+    return _simulate(scene, labels, {}, beats, steady, pump)
 
 
 def sweep(
@@ -96,6 +101,7 @@ def sweep(
     afterload=None,
     beats=None,
     accuracy=None,
+    steady="beats",
     pump: PumpSurrogate | None = None,
 ) -> RunResult:
     """Simulate several designs (Omega, C) at every afterload of a scene in one compiled call.
@@ -124,22 +130,22 @@ def sweep(
     members = {"omega": np.asarray(omegas), "shortening": np.asarray(shortenings)}
     if scene.afterload.has_heads:
         members["afterload"] = np.asarray(members_heads)
-    return _simulate(scene, labels, members, beats, pump)
+    return _simulate(scene, labels, members, beats, steady, pump)
 
 
-def _simulate(scene: Scene, labels, members: dict, beats, pump) -> RunResult:
+def _simulate(scene: Scene, labels, members: dict, beats, steady, pump) -> RunResult:
     """Solve the members (all the scene's afterloads by default) and label the records."""
     pump = load() if pump is None else pump
     if scene.static:
         static = solve_static(scene, **members, pump=pump)
-        return RunResult(scene, member_results(labels, None, static))
+        return RunResult(scene, member_results(labels, None, static, pump.domain))
     if not scene.afterload.has_heads:
-        dynamic = solve_beats(scene, **members, beats=beats, pump=pump)
-        return RunResult(scene, member_results(labels, dynamic, None))
+        dynamic = solve_beats(scene, **members, beats=beats, steady=steady, pump=pump)
+        return RunResult(scene, member_results(labels, dynamic, None, pump.domain))
     # Compiling the dynamic solve takes seconds; the quasi-static strokes compile on a second
     # thread meanwhile (JAX traces and compiles thread-safely).
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
         pending = pool.submit(solve_static, scene, **members, pump=pump)
-        dynamic = solve_beats(scene, **members, beats=beats, pump=pump)
+        dynamic = solve_beats(scene, **members, beats=beats, steady=steady, pump=pump)
         static = pending.result()
-    return RunResult(scene, member_results(labels, dynamic, static))
+    return RunResult(scene, member_results(labels, dynamic, static, pump.domain))

@@ -12,7 +12,7 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_path", "refuse_overwrite", "sha256"]
+__all__ = ["atomic_path", "check_writable_folder", "refuse_overwrite", "sha256"]
 
 
 def refuse_overwrite(path, force: bool) -> None:
@@ -43,3 +43,18 @@ def sha256(path) -> str:
         for block in iter(lambda: f.read(1 << 16), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def check_writable_folder(path, what: str = "--out") -> None:
+    """Raise ``ValueError`` unless ``path`` is, or could be made as, a folder this process can
+    write into; nothing is created. For checking an output folder before a long computation."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{what} {path}: exists and is not a folder")
+    parent = path
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{what} {path}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{what} {path}: no permission to write in {parent}")

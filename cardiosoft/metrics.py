@@ -47,6 +47,14 @@ class BeatMetrics(eqx.Module):
     """Area of the pressure-volume loop, -(closed integral of P_pump dV) (J)."""
     efficiency: jax.Array
     """P_a SV / M, the paper's efficiency."""
+    min_pump_pressure: jax.Array
+    """Smallest chamber pressure of the beat's samples (Pa); with the largest, whether the
+    surrogate was used inside the pressure range it was fitted on."""
+    max_pump_pressure: jax.Array
+    """Largest chamber pressure of the beat's samples (Pa)."""
+    min_cable_force: jax.Array
+    """Smallest measured cable force of the beat's samples (N): negative means the prescribed
+    pull needs a cable that pushes."""
 
 
 def beat_metrics(ts, volume, signals, n_pull: int, period, reference_pressure) -> BeatMetrics:
@@ -78,4 +86,7 @@ def beat_metrics(ts, volume, signals, n_pull: int, period, reference_pressure) -
         hydraulic_work_pull=hyd_pull,
         stroke_work=stroke_work,
         efficiency=h_paper / mech,
+        min_pump_pressure=jnp.min(p_pump),
+        max_pump_pressure=jnp.max(p_pump),
+        min_cable_force=jnp.min(signals["cable_force"]),
     )

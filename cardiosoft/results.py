@@ -13,10 +13,11 @@ import numpy as np
 
 from cardiosoft.batch import BeatSolution, StaticSolution
 from cardiosoft.metrics import BeatMetrics
+from cardiosoft.pump import Domain
 from cardiosoft.scene import Scene
 from cardiosoft.units import ml, mmHg
 
-__all__ = ["MemberResult", "RunResult", "member_results", "summary_records"]
+__all__ = ["MemberResult", "RunResult", "flags", "member_results", "summary_records"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +39,10 @@ class MemberResult:
     """:class:`~cardiosoft.metrics.BeatMetrics` fields, plus ``static_*`` for the bench."""
     traces: dict[str, np.ndarray]
     """Last beat: time, pull, volume, pressures, flows, forces (SI); empty when not saved."""
+    flags: tuple[str, ...] = ()
+    """Why a number of this member is not to be trusted as it is, in words: the surrogate
+    extrapolated (which quantity, how far), a cable that would push, a metric that is not
+    meaningful here (and was set to NaN). Empty when there is none."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +54,13 @@ class RunResult:
 
     @property
     def ok(self) -> bool:
+        """Every member solved, at its periodic steady state."""
         return all(m.ok for m in self.members)
+
+    @property
+    def flagged(self) -> bool:
+        """Some member has :attr:`MemberResult.flags`."""
+        return any(m.flags for m in self.members)
 
 
 def _static_metrics(static: StaticSolution, i: int) -> dict[str, float]:
@@ -61,10 +72,60 @@ def _static_metrics(static: StaticSolution, i: int) -> dict[str, float]:
     }
 
 
+def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
+    """What of a member's numbers lies outside the surrogate's fitted domain or is unphysical.
+
+    Sets a paper's efficiency ``P_a SV / M`` that is not meaningful (outside [0, 1], no
+    mechanical work, or a pull that does no net work on the fluid) to NaN in ``metrics``: the paper's definition holds for a quasi-static pull
+    against a steady head; a fast beat whose column oscillates, or a stroke so small that the
+    pressure's own work dominates, gives numbers like 1.06 that are not efficiencies.
+
+    - the chamber pressure outside ``domain.pressure_mmHg`` (the pressures the surrogate was
+      fitted on): its volumes, forces and every metric derived from them are extrapolated;
+    - a negative cable force: the prescribed pull would need the cables to push. A real cable
+      goes slack instead and the shell then moves by itself, which this displacement-controlled
+      model does not simulate; the result is reported, flagged, not corrected.
+    """
+    out = []
+    lo, hi = domain.pressure_mmHg
+    if "min_pump_pressure" in metrics:
+        p_lo, p_hi = metrics["min_pump_pressure"] / mmHg, metrics["max_pump_pressure"] / mmHg
+        if p_lo < lo:
+            out.append(f"pump pressure down to {p_lo:.1f} mmHg, below the fitted {lo:g} mmHg")
+        if p_hi > hi:
+            out.append(f"pump pressure up to {p_hi:.1f} mmHg, above the fitted {hi:g} mmHg")
+    if metrics.get("min_cable_force", 0.0) < 0.0:
+        out.append(
+            f"cable force down to {metrics['min_cable_force']:.1f} N: the pull needs a cable that "
+            "pushes (a real cable goes slack; not modelled)"
+        )
+    for key in ("efficiency", "static_efficiency"):
+        e = metrics.get(key)
+        work = metrics.get("mech_work" if key == "efficiency" else "static_mech_work", 0.0)
+        # a pull that does no net work on the fluid (a fast beat, the column swinging back)
+        pushed = metrics.get("hydraulic_work_pull", 1.0) > 0.0 if key == "efficiency" else True
+        if e is not None and not (pushed and work > 0.0 and 0.0 <= e <= 1.0):
+            metrics[key] = math.nan
+            out.append(
+                f"{key.replace('_', ' ')} P_a SV / M = {e:.3g} with M = {work:.3g} J is not "
+                "meaningful here (the paper's definition holds for a quasi-static pull against "
+                "a steady head); reported as none"
+            )
+    return tuple(out)
+
+
 def member_results(
-    labels, dynamic: BeatSolution | None, static: StaticSolution | None
+    labels,
+    dynamic: BeatSolution | None,
+    static: StaticSolution | None,
+    domain: Domain | None = None,
 ) -> tuple[MemberResult, ...]:
-    """Records from a batch solve and/or the quasi-static strokes of the same members."""
+    """Records from a batch solve and/or the quasi-static strokes of the same members.
+
+    ``domain``: the surrogate's fitted domain (default: :class:`~cardiosoft.pump.Domain`), for
+    :func:`flags`.
+    """
+    domain = Domain() if domain is None else domain
     members = (dynamic if dynamic is not None else static).members
     heads = np.asarray(members["afterload"])
     out = []
@@ -72,7 +133,10 @@ def member_results(
         head = None if math.isnan(heads[i]) else float(heads[i])
         m = {} if static is None else _static_metrics(static, i)
         if dynamic is None:
-            out.append(MemberResult(label, head, True, "quasi-static", 0, 0.0, 0.0, m, {}))
+            reasons = flags(m, domain)
+            out.append(
+                MemberResult(label, head, True, "quasi-static", 0, 0.0, 0.0, m, {}, reasons)
+            )
             continue
         m = {
             f.name: float(getattr(dynamic.metrics, f.name)[i])
@@ -93,6 +157,7 @@ def member_results(
                 float(dynamic.volume_drift[i]),
                 m,
                 traces,
+                flags(m, domain),
             )
         )
     return tuple(out)
@@ -124,6 +189,11 @@ def summary_records(result: RunResult) -> list[dict]:
                 "volume_drift": m.volume_drift,
                 "ok": m.ok,
                 "message": m.message,
+                "flags": list(m.flags),
             }
         )
-    return records
+    # JSON has no NaN: a value that cannot be computed (an efficiency of a zero stroke) is null
+    return [
+        {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in r.items()}
+        for r in records
+    ]

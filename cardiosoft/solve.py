@@ -103,7 +103,17 @@ def preset(name: str, stiff: bool = False) -> SolverConfig:
 
 
 def integrate(
-    vector_field, y0, t0, t1, *, args=None, ts=None, jump_ts=None, config=None, dense=False
+    vector_field,
+    y0,
+    t0,
+    t1,
+    *,
+    args=None,
+    ts=None,
+    jump_ts=None,
+    config=None,
+    dense=False,
+    max_step=None,
 ) -> diffrax.Solution:
     """Solve ``dy/dt = vector_field(t, y, args)`` from ``t0`` to ``t1``.
 
@@ -117,6 +127,9 @@ def integrate(
       stepped to exactly through ``ClipStepSizeController``.
     - ``config``: a :class:`SolverConfig`, ``preset("default")`` when None.
     - ``dense``: keep the dense interpolant (``sol.evaluate``).
+    - ``max_step``: the longest step (same unit as t), None for no cap. Error control cannot
+      see forcing that falls entirely between two steps: cap the step below the shortest
+      feature of a forcing whose kinks are not passed as ``jump_ts``.
 
     **Returns:** the ``diffrax.Solution``; never throws, check ``sol.result``.
     """
@@ -124,7 +137,11 @@ def integrate(
     dt0 = config.dt0
     if config.fixed_steps is None:
         controller = diffrax.PIDController(
-            rtol=config.rtol, atol=config.atol, pcoeff=config.pcoeff, icoeff=config.icoeff
+            rtol=config.rtol,
+            atol=config.atol,
+            pcoeff=config.pcoeff,
+            icoeff=config.icoeff,
+            dtmax=max_step,
         )
     else:
         # equal steps that may still be cut at jump_ts (ClipStepSizeController needs an adaptive
@@ -161,7 +178,7 @@ def _afterload_field(t, y, args):
 
 
 @eqx.filter_jit
-def _respond(block, inflow, ts, y0, config, jump_ts):
+def _respond(block, inflow, ts, y0, config, jump_ts, max_step):
     sol = integrate(
         _afterload_field,
         y0,
@@ -171,6 +188,7 @@ def _respond(block, inflow, ts, y0, config, jump_ts):
         ts=ts,
         jump_ts=jump_ts,
         config=config,
+        max_step=max_step,
     )
 
     def pressure(t, y):
@@ -180,7 +198,9 @@ def _respond(block, inflow, ts, y0, config, jump_ts):
     return jax.vmap(pressure)(ts, sol.ys), sol.result, sol.stats["num_steps"]
 
 
-def respond(block, inflow, ts, y0=None, config=None, *, jump_ts=None) -> jax.Array:
+def respond(
+    block, inflow, ts, y0=None, config=None, *, jump_ts=None, max_step="auto"
+) -> jax.Array:
     """Inlet pressure (Pa) of an afterload driven standalone by a prescribed inflow.
 
     **Arguments:**
@@ -193,6 +213,11 @@ def respond(block, inflow, ts, y0=None, config=None, *, jump_ts=None) -> jax.Arr
     - ``y0``: initial block state; ``block.init()`` (rest) when None.
     - ``config``: a :class:`SolverConfig` (``preset("default")`` when None); ``jump_ts``:
       kinks of ``inflow`` (s).
+    - ``max_step``: the longest solver step (s). ``"auto"`` (the default): the shortest
+      interval of ``ts`` without ``jump_ts``, no cap with them. Error control only sees the
+      inflow where it steps: a pulse that falls between two steps would vanish without a word,
+      so without the kinks the step is kept as fine as the output grid (a pulse the grid
+      resolves is resolved). ``None``: no cap.
 
     **Returns:** the inlet pressure at ``ts``. Raises ``RuntimeError`` if the solve failed, or
     an equinox runtime error when called under ``jit``.
@@ -200,7 +225,12 @@ def respond(block, inflow, ts, y0=None, config=None, *, jump_ts=None) -> jax.Arr
     ts = jnp.asarray(ts, dtype=jnp.result_type(float))
     y0 = block.init() if y0 is None else y0
     config = preset("default") if config is None else config
-    p, result, num_steps = _respond(block, inflow, ts, y0, config, jump_ts)
+    if isinstance(max_step, str):
+        if max_step != "auto":
+            raise ValueError(f"max_step = {max_step!r}: allowed 'auto', None or a step in s")
+        gaps = jnp.diff(jnp.concatenate([jnp.zeros(1, ts.dtype), ts]))
+        max_step = None if jump_ts is not None else jnp.min(jnp.where(gaps > 0, gaps, jnp.inf))
+    p, result, num_steps = _respond(block, inflow, ts, y0, config, jump_ts, max_step)
     failed = result != diffrax.RESULTS.successful
     message = "respond: the afterload solve failed; raise max_steps or loosen the tolerances"
     if isinstance(failed, jax.core.Tracer):

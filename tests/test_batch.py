@@ -61,10 +61,13 @@ def test_members_broadcast_and_flags(both_modes):
     assert np.all(np.diff(sv) != 0)  # three different designs, three different answers
 
 
-def test_fixed_beats_are_steady_by_definition_and_reported_as_run(scene):
+def test_fixed_beats_say_whether_they_reached_the_steady_state(scene):
+    """Exactly 2 beats from rest are a transient: the result says so, with the cycle change."""
     out = solve_beats(scene, beats=2, save="metrics")
     np.testing.assert_array_equal(out.beats, [2, 2, 2])
-    assert bool(jnp.all(out.steady))
+    np.testing.assert_array_equal(out.steady, np.asarray(out.residual) <= scene.steady_tol)
+    assert not bool(jnp.any(out.steady))
+    assert all("not steady after 2 beats" in out.message(i) for i in range(3))
 
 
 def test_static_solution_matches_run(scene):

@@ -369,7 +369,10 @@ def test_negligible_effects_agree_with_the_effects_off(effect_runs, metric):
     # of the default preset is 1.4e-5 of a 70-ml SV).
     for tiny, off, rel in (("K tiny", "off", 1e-6), ("r tiny", "elastic", 5e-5)):
         tiny, off = effect_runs[tiny], effect_runs[off]
-        assert tiny.ok and off.ok
+        # solved; 20 beats need not be the steady state (without the minor loss the bench rings
+        # longer): the two runs are compared beat for beat
+        members = (*tiny.members, *off.members)
+        assert not any(m.message.startswith("solver failed") for m in members)
         for a, b in zip(tiny.members, off.members, strict=True):
             assert a.metrics[metric] == pytest.approx(b.metrics[metric], rel=rel)
 

@@ -53,7 +53,9 @@ def pull_phase(result, member):
 
 
 def finite_metrics(member):
-    return all(math.isfinite(v) for v in member.metrics.values())
+    """Every metric finite, or set to NaN on purpose and flagged (an efficiency that is not one)."""
+    flagged = {f.split(" P_a SV / M")[0].replace(" ", "_") for f in member.flags}
+    return all(math.isfinite(v) or k in flagged for k, v in member.metrics.items())
 
 
 # ---------------------------------------------------------------------------- conservation

@@ -1,0 +1,98 @@
+"""Every result says whether it can be trusted (issue #14): steady or not, inside the
+surrogate's fitted range or not, a cable that would push, an efficiency that is not one; and
+edge inputs get an answer or one clear line, never a traceback or invalid JSON."""
+
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from cardiosoft.experiment import run, sweep
+from cardiosoft.pump import Domain
+from cardiosoft.results import summary_records
+from cardiosoft.units import mmHg
+
+
+@pytest.fixture(scope="module")
+def fast_beats():
+    """180 bpm against 90 mmHg: the chamber pressure swings far past the fitted range."""
+    return run("bench-dynamic", bpm=180, afterload=[90])
+
+
+def test_leaving_the_fitted_range_is_flagged(fast_beats):
+    (m,) = fast_beats.members
+    lo, hi = Domain().pressure_mmHg
+    assert m.metrics["min_pump_pressure"] / mmHg < lo
+    assert m.metrics["max_pump_pressure"] / mmHg > hi
+    text = " | ".join(m.flags)
+    assert f"below the fitted {lo:g} mmHg" in text
+    assert f"above the fitted {hi:g} mmHg" in text
+    assert "cable that pushes" in text and m.metrics["min_cable_force"] < 0
+    assert fast_beats.flagged
+    (record,) = summary_records(fast_beats)
+    assert record["flags"] == list(m.flags)
+
+
+def test_an_efficiency_that_is_not_one_is_not_reported(fast_beats):
+    """The paper's P_a SV / M at 180 bpm was 0.535 while the pull did negative hydraulic work
+    (the column swinging back)."""
+    (m,) = fast_beats.members
+    assert m.metrics["hydraulic_work_pull"] < 0
+    assert math.isnan(m.metrics["efficiency"])
+    assert any(f.startswith("efficiency P_a SV / M") for f in m.flags)
+    (record,) = summary_records(fast_beats)
+    assert record["efficiency"] is None
+
+
+def test_a_tiny_stroke_against_a_high_head_reports_no_efficiency_above_one():
+    result = run("bench-static", shortening=0.001, afterload=[150])
+    (record,) = summary_records(result)
+    assert record["efficiency"] is None or 0 <= record["efficiency"] <= 1
+
+
+def test_zero_shortening_gives_zero_stroke_and_valid_json():
+    result = run("bench-static", shortening=0.0, afterload=[0, 150])
+    records = summary_records(result)
+    json.loads(json.dumps(records, allow_nan=False))  # no NaN in the JSON
+    for r in records:
+        assert abs(r["static_sv_ml"]) < 1e-9
+        assert r["efficiency"] is None
+
+
+def test_a_windkessel_scene_has_no_static_stroke_volume_in_its_summary():
+    result = run("lv-systemic", beats=2)
+    (record,) = summary_records(result)
+    assert record["static_sv_ml"] is None
+    json.loads(json.dumps(record, allow_nan=False))
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: run("bench-dynamic", beats=2.5), "beats = 2.5"),
+        (lambda: sweep("bench-dynamic", designs=[]), "designs = "),
+        (lambda: sweep("bench-dynamic", designs=[(4.0,)]), "designs = "),
+        (lambda: run("bench-dynamic", steady="newton"), "steady = 'newton'"),
+    ],
+)
+def test_bad_arguments_name_themselves(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+@pytest.mark.parametrize("out", ["{file}/sub", "{file}"])
+def test_an_unwritable_out_is_refused_before_simulating(tmp_path, out):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a folder")
+    proc = subprocess.run(
+        [sys.executable, "-m", "cardiosoft.simulate", "--out", out.format(file=a_file)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("error: --out")
+    assert "Traceback" not in proc.stderr
+    assert a_file.read_text() == "not a folder"
