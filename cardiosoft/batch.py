@@ -117,11 +117,14 @@ SCENE_NUMBERS = (
 )
 
 
-def scene_circuit(scene: Scene, pump: PumpSurrogate, afterload=None) -> PumpCircuit:
+def scene_circuit(
+    scene: Scene, pump: PumpSurrogate, afterload=None, *, energy: bool = False
+) -> PumpCircuit:
     """The :class:`PumpCircuit` of one member of ``scene``, with only the scene's effects.
 
     ``afterload`` is the column head (Pa) of a water-column scene (default: its first) and is
-    ignored by a Windkessel scene. Numbers may be traced (this runs inside the batch solve).
+    ignored by a Windkessel scene. ``energy``: keep the energy account
+    (:meth:`PumpCircuit.power`). Numbers may be traced (this runs inside the batch solve).
     """
     stroke = scene.shortening * pump.cable_length(scene.omega)
     actuation = CablePull(
@@ -145,6 +148,7 @@ def scene_circuit(scene: Scene, pump: PumpSurrogate, afterload=None) -> PumpCirc
         **scene.afterload.blocks(scene, scene.afterloads[0] if afterload is None else afterload),
         cable_friction=friction,
         viscoelasticity=viscoelasticity,
+        energy=energy,
     )
 
 
@@ -294,18 +298,24 @@ def _metrics(circuit: PumpCircuit, ts, ys):
         reference = circuit.afterload.node_pressure(circuit.afterload.init())
     else:  # a Windkessel: the mean afterload pressure
         reference = jnp.mean(signals["node_pressure"])
+    energy = None
+    if circuit.energy:
+        first, last = (jax.tree_util.tree_map(lambda a, i=i: a[i], ys) for i in (0, -1))
+        terms = {k: v[-1] - v[0] for k, v in ys["energy"].items()}
+        stored = circuit.stored_energy(ts[-1], last) - circuit.stored_energy(ts[0], first)
+        energy = (terms, stored)
     metrics = beat_metrics(
-        ts, ys["volume"], signals, PULL_SAMPLES, circuit.actuation.period, reference
+        ts, ys["volume"], signals, PULL_SAMPLES, circuit.actuation.period, reference, energy
     )
     return signals, metrics
 
 
 @eqx.filter_jit
-def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save: str, steady):
+def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save, steady, energy):
     def one(member):
         values = {k: v for k, v in member.items() if k != "afterload"}
         scene = dataclasses.replace(structure, **(numbers | values))
-        circuit = scene_circuit(scene, pump, member["afterload"])
+        circuit = scene_circuit(scene, pump, member["afterload"], energy=energy)
         ts = _save_times(circuit.actuation)
         observe = None if save == "traces" else (lambda ts, ys: _metrics(circuit, ts, ys)[1])
         common = dict(
@@ -351,6 +361,7 @@ def solve_beats(
     beats: int | None = None,
     save: str = "traces",
     steady: str = "beats",
+    energy: bool = False,
     pump: PumpSurrogate | None = None,
     config: SolverConfig | None = None,
 ) -> BeatSolution:
@@ -370,6 +381,10 @@ def solve_beats(
       Newton's method on the one-beat map (:func:`cardiosoft.solve.shoot_periodic`), whose
       derivative is that of the periodic orbit itself (implicit function theorem), with beat
       after beat as the fallback. Ignored with a fixed number of ``beats``.
+    - ``energy``: keep the energy account of every beat (:meth:`PumpCircuit.power`); the
+      metrics then hold ``work_in``, ``work_delivered``, ``work_lost``, ``stored_change``,
+      ``energy_residual`` and ``energy_efficiency``. It puts the cable force into the vector
+      field: slower, and the added states change the adaptive steps (to within tolerance).
     - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate`; default the shipped one.
     - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default :func:`default_config`.
 
@@ -394,7 +409,7 @@ def solve_beats(
     structure, numbers = _split(scene)
     method = "beats" if beats is not None else steady
     metrics, traces, out = _solve(
-        structure, numbers, pump, _shard(members), max_beats, tol, config, save, method
+        structure, numbers, pump, _shard(members), max_beats, tol, config, save, method, energy
     )
     return BeatSolution(
         members=members,

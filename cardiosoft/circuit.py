@@ -91,6 +91,11 @@ class ShellViscoelasticity(eqx.Module):
         """ds_v/dt (m^3/s)."""
         return self.strain(chamber, volume, relaxed) / self.relaxation_time
 
+    def dissipation(self, chamber: Chamber, volume, relaxed):
+        """Power lost in the dashpot (W), ``r E (V - V_eq - s_v)^2 / tau >= 0``."""
+        stiffness = self.stiffness_ratio * chamber.elastance
+        return stiffness * self.strain(chamber, volume, relaxed) ** 2 / self.relaxation_time
+
 
 class PumpCircuit(eqx.Module):
     """The pump's vector field; see the module docstring.
@@ -104,6 +109,12 @@ class PumpCircuit(eqx.Module):
     - ``preload``: an :class:`~cardiosoft.circulation.AbstractPreload` or None (needs an inlet
       valve).
     - ``cable_friction``: a :class:`CableFriction` or None.
+    - ``viscoelasticity``: a :class:`ShellViscoelasticity` or None.
+    - ``energy`` (static): keep the energy account as states (:meth:`power`): the work done by
+      the cables and by the atrium, delivered past the outlet, and lost to friction, the
+      shell's viscosity and the valves, integrated by the solver with the rest (J). Off by
+      default: the cable force then stays out of the vector field, which is several times
+      cheaper to evaluate without it.
     """
 
     pump: PumpSurrogate
@@ -115,6 +126,7 @@ class PumpCircuit(eqx.Module):
     preload: AbstractPreload | None = None
     cable_friction: CableFriction | None = None
     viscoelasticity: ShellViscoelasticity | None = None
+    energy: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         if (self.preload is None) != (self.inlet_valve is None):
@@ -156,6 +168,9 @@ class PumpCircuit(eqx.Module):
         if self.viscoelasticity is not None:
             chamber = self.pump.chamber(self.actuation(0.0), self.omega)
             y["relaxation"] = self.viscoelasticity.rest_state(chamber, y["volume"])
+        if self.energy:
+            terms = self.power(0.0, y)
+            y["energy"] = {k: jnp.zeros_like(v) for k, v in terms.items()}
         return y
 
     def _algebraic_outflow(self, ya, dp):
@@ -199,7 +214,11 @@ class PumpCircuit(eqx.Module):
         """Everything observable at time t (SI): pull, pressures, flows, forces."""
         out = self._hydraulics(t, y)
         del out["chamber"]
-        x, volume = out["pull"], y["volume"]
+        return out | self._forces(t, y, out["pull"])
+
+    def _forces(self, t, y, x) -> dict:
+        """The shell's force dU/dx and the cable force the load cell reads (N)."""
+        volume = y["volume"]
 
         def volume_energy(pull):
             """The chamber's energy, and the viscoelastic branch's, at this volume (J).
@@ -213,11 +232,60 @@ class PumpCircuit(eqx.Module):
             return energy
 
         force = self.pump.zero_pressure_force(x, self.omega) + jax.grad(volume_energy)(x)
-        out["shell_force"] = force
+        out = {"shell_force": force}
         if self.cable_friction is not None:
             force = force * self.cable_friction.factor(self.actuation.velocity(t))
         out["cable_force"] = force
         return out
+
+    def power(self, t, y, hydraulics: dict | None = None) -> dict:
+        """The energy account's rates at time t (W), each term present only with its effect.
+
+        - ``cable_in``: F_cable dx/dt, the work of the cables on the disk;
+        - ``atrium_in``: P_preload q_in, the work of the filling source (with a preload);
+        - ``delivered``: P_outlet q_out, the work done on the fluid past the outlet (valve):
+          the afterload's, including its line (the bench's tube, a Windkessel's Rp);
+        - ``friction``: (F_cable - F_shell) dx/dt, lost at the base holes;
+        - ``viscous``: the shell dashpot's loss (:meth:`ShellViscoelasticity.dissipation`);
+        - ``valves``: (P_pump - P_outlet) q_out + (P_preload - P_pump) q_in.
+
+        ``cable_in + atrium_in = delivered + friction + viscous + valves + dU/dt``, U the
+        shell's strain energy (:meth:`stored_energy`): ``dU = F_shell dx + P_pump dV``.
+        """
+        s = self._hydraulics(t, y) if hydraulics is None else hydraulics
+        forces = self._forces(t, y, s["pull"])
+        speed = self.actuation.velocity(t)
+        q_out, p_pump = s["outflow"], s["pump_pressure"]
+        out = {"cable_in": forces["cable_force"] * speed}
+        if self.outlet_valve is None:
+            p_outlet = p_pump  # no valve: the pump's pressure drives the line itself
+        else:  # past the valve: the line's resistance and the node (no inertance with a valve)
+            r = self.afterload.line_resistance(y["afterload"])
+            p_outlet = s["node_pressure"] + (0.0 if r is None else r * q_out)
+        out["delivered"] = p_outlet * q_out
+        if self.preload is not None:
+            out["atrium_in"] = s["preload_pressure"] * s["inflow"]
+        if self.cable_friction is not None:
+            out["friction"] = (forces["cable_force"] - forces["shell_force"]) * speed
+        if self.viscoelasticity is not None:
+            out["viscous"] = self.viscoelasticity.dissipation(
+                s["chamber"], y["volume"], y["relaxation"]
+            )
+        if self.outlet_valve is not None:
+            valves = (p_pump - p_outlet) * q_out
+            if self.preload is not None:
+                valves = valves + (s["preload_pressure"] - p_pump) * s["inflow"]
+            out["valves"] = valves
+        return out
+
+    def stored_energy(self, t, y) -> jax.Array:
+        """The shell's strain energy U(V, x) plus the dashpot spring's (J) at time t."""
+        x = self.actuation(t)
+        energy = self.pump.energy(y["volume"], x, self.omega)
+        if self.viscoelasticity is not None:
+            chamber = self.pump.chamber(x, self.omega)
+            energy = energy + self.viscoelasticity.energy(chamber, y["volume"], y["relaxation"])
+        return energy
 
     def __call__(self, t, y, args=None) -> dict:
         s = self._hydraulics(t, y)
@@ -240,6 +308,8 @@ class PumpCircuit(eqx.Module):
             if k is not None:
                 drop = drop - k * q * jnp.abs(q)
             dy["flow"] = drop / self.afterload.line_inertance(ya)
+        if self.energy:
+            dy["energy"] = self.power(t, y, s)
         return dy
 
     def total_volume(self, y) -> jax.Array:

@@ -62,6 +62,7 @@ def run(
     beats=None,
     accuracy=None,
     steady="beats",
+    energy=False,
     pump: PumpSurrogate | None = None,
 ) -> RunResult:
     """Simulate a scene; the Python twin of ``python -m cardiosoft.simulate``.
@@ -76,6 +77,8 @@ def run(
     - ``accuracy``: "fast", "default" or "reference".
     - ``steady``: "beats" (beat after beat) or "shooting" (Newton shooting on the one-beat map,
       robust at high rates); see :func:`cardiosoft.batch.solve_beats`.
+    - ``energy``: keep each beat's energy account; adds ``energy_efficiency`` (work delivered
+      past the outlet over work put in, in [0, 1] at any rate) and ``energy_residual``.
     - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate` (default: the shipped one).
 
     **Returns:** a :class:`~cardiosoft.results.RunResult`, one member per afterload. Each member
@@ -90,7 +93,7 @@ def run(
         labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
     else:
         labels = [scene.name]
-    return _simulate(scene, labels, {}, beats, steady, pump)
+    return _simulate(scene, labels, {}, beats, steady, pump, energy)
 
 
 def sweep(
@@ -133,19 +136,20 @@ def sweep(
     return _simulate(scene, labels, members, beats, steady, pump)
 
 
-def _simulate(scene: Scene, labels, members: dict, beats, steady, pump) -> RunResult:
+def _simulate(scene: Scene, labels, members: dict, beats, steady, pump, energy=False):
     """Solve the members (all the scene's afterloads by default) and label the records."""
     pump = load() if pump is None else pump
+    options = dict(beats=beats, steady=steady, energy=energy, pump=pump)
     if scene.static:
         static = solve_static(scene, **members, pump=pump)
         return RunResult(scene, member_results(labels, None, static, pump.domain))
     if not scene.afterload.has_heads:
-        dynamic = solve_beats(scene, **members, beats=beats, steady=steady, pump=pump)
+        dynamic = solve_beats(scene, **members, **options)
         return RunResult(scene, member_results(labels, dynamic, None, pump.domain))
     # Compiling the dynamic solve takes seconds; the quasi-static strokes compile on a second
     # thread meanwhile (JAX traces and compiles thread-safely).
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
         pending = pool.submit(solve_static, scene, **members, pump=pump)
-        dynamic = solve_beats(scene, **members, beats=beats, steady=steady, pump=pump)
+        dynamic = solve_beats(scene, **members, **options)
         static = pending.result()
     return RunResult(scene, member_results(labels, dynamic, static, pump.domain))

@@ -55,13 +55,31 @@ class BeatMetrics(eqx.Module):
     min_cable_force: jax.Array
     """Smallest measured cable force of the beat's samples (N): negative means the prescribed
     pull needs a cable that pushes."""
+    # The energy account of the beat (J), with PumpCircuit(energy=True); None without it.
+    work_in: jax.Array | None = None
+    """Work of the cables plus that of the filling source over the beat (J)."""
+    work_delivered: jax.Array | None = None
+    """Work done on the fluid past the outlet: the afterload's, its line included (J)."""
+    work_lost: jax.Array | None = None
+    """Lost to cable friction, the shell's viscosity and the valves (J)."""
+    stored_change: jax.Array | None = None
+    """Change of the shell's strain energy over the beat (J); 0 at the periodic steady state."""
+    energy_residual: jax.Array | None = None
+    """|work_in - work_delivered - work_lost - stored_change| / work_in: how well the account
+    closes (the solver's error; ~tolerance)."""
+    energy_efficiency: jax.Array | None = None
+    """work_delivered / work_in: in [0, 1] whenever the losses are, at any rate and afterload."""
 
 
-def beat_metrics(ts, volume, signals, n_pull: int, period, reference_pressure) -> BeatMetrics:
+def beat_metrics(
+    ts, volume, signals, n_pull: int, period, reference_pressure, energy=None
+) -> BeatMetrics:
     """Metrics from the last beat's samples.
 
     ``ts`` (s), ``volume`` (m^3) and the ``signals`` of :meth:`PumpCircuit.signals` are sampled
     over one period; the first ``n_pull`` samples (static) span exactly the pull phase.
+    ``energy``: the beat's energy account, ``(terms, stored_change)`` with ``terms`` the
+    accumulated :meth:`PumpCircuit.power` terms over the beat (J), or None.
     """
     edv, esv = jnp.max(volume), jnp.min(volume)
     sv = edv - esv
@@ -89,4 +107,20 @@ def beat_metrics(ts, volume, signals, n_pull: int, period, reference_pressure) -
         min_pump_pressure=jnp.min(p_pump),
         max_pump_pressure=jnp.max(p_pump),
         min_cable_force=jnp.min(signals["cable_force"]),
+        **({} if energy is None else _energy_account(*energy)),
     )
+
+
+def _energy_account(terms: dict, stored_change) -> dict:
+    zero = jnp.zeros_like(terms["cable_in"])
+    work_in = terms["cable_in"] + terms.get("atrium_in", zero)
+    lost = sum((terms.get(k, zero) for k in ("friction", "viscous", "valves")), zero)
+    delivered = terms["delivered"]
+    return {
+        "work_in": work_in,
+        "work_delivered": delivered,
+        "work_lost": lost,
+        "stored_change": stored_change,
+        "energy_residual": jnp.abs(work_in - delivered - lost - stored_change) / work_in,
+        "energy_efficiency": delivered / work_in,
+    }

@@ -76,9 +76,11 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
     """What of a member's numbers lies outside the surrogate's fitted domain or is unphysical.
 
     Sets a paper's efficiency ``P_a SV / M`` that is not meaningful (outside [0, 1], no
-    mechanical work, or a pull that does no net work on the fluid) to NaN in ``metrics``: the paper's definition holds for a quasi-static pull
-    against a steady head; a fast beat whose column oscillates, or a stroke so small that the
-    pressure's own work dominates, gives numbers like 1.06 that are not efficiencies.
+    mechanical work, or a pull that does no net work on the fluid) to NaN in ``metrics``: the
+    paper's definition holds for a quasi-static pull against a steady head; a fast beat whose
+    column oscillates, or a stroke so small that the pressure's own work dominates, gives
+    numbers like 1.06 that are not efficiencies. ``energy_efficiency`` (``energy=True``) is the
+    one that holds at any rate.
 
     - the chamber pressure outside ``domain.pressure_mmHg`` (the pressures the surrogate was
       fitted on): its volumes, forces and every metric derived from them are extrapolated;
@@ -141,6 +143,7 @@ def member_results(
         m = {
             f.name: float(getattr(dynamic.metrics, f.name)[i])
             for f in dataclasses.fields(BeatMetrics)
+            if getattr(dynamic.metrics, f.name) is not None  # the energy account is opt-in
         } | m
         traces = {} if dynamic.traces is None else {
             k: np.asarray(v[i]) for k, v in dynamic.traces.items()
@@ -189,6 +192,8 @@ def summary_records(result: RunResult) -> list[dict]:
                 "volume_drift": m.volume_drift,
                 "ok": m.ok,
                 "message": m.message,
+                "energy_efficiency": x.get("energy_efficiency"),
+                "energy_residual": x.get("energy_residual"),
                 "flags": list(m.flags),
             }
         )
