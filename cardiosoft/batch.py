@@ -186,6 +186,7 @@ class BeatSolution(eqx.Module):
     newton_steps: jax.Array
     steady_tol: float = eqx.field(static=True)
     fixed_beats: bool = eqx.field(static=True, default=False)
+    max_steps: int = eqx.field(static=True, default=0)
 
     @property
     def succeeded(self) -> jax.Array:
@@ -203,7 +204,13 @@ class BeatSolution(eqx.Module):
         beats = int(self.beats[i])
         if not bool(self.succeeded[i]):
             reason = diffrax.RESULTS[jax.tree_util.tree_map(lambda a: a[i], self.result)]
-            return f"solver failed in beat {beats}: {str(reason).strip()}"
+            hint = ""
+            if "max_steps" in str(reason):
+                hint = (
+                    f" ({self.max_steps} per beat now: run(max_steps=...), --max-steps; or a "
+                    "looser accuracy preset)"
+                )
+            return f"solver failed in beat {beats}: {str(reason).strip()}{hint}"
         if not bool(self.steady[i]):
             return (
                 f"not steady after {beats} beats (cycle change {float(self.residual[i]):.3g} > "
@@ -423,6 +430,7 @@ def solve_beats(
         newton_steps=out.newton_steps,
         steady_tol=float(scene.steady_tol),
         fixed_beats=beats is not None,
+        max_steps=config.max_steps,
     )
 
 

@@ -9,11 +9,12 @@ records (:mod:`cardiosoft.results`).
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 
 import numpy as np
 
 from cardiosoft._validate import check_range
-from cardiosoft.batch import solve_beats, solve_static
+from cardiosoft.batch import default_config, solve_beats, solve_static
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.results import RunResult, member_results
 from cardiosoft.scene import ACCURACY, RANGES, Scene, load_scene
@@ -63,6 +64,7 @@ def run(
     accuracy=None,
     steady="beats",
     energy=False,
+    max_steps=None,
     pump: PumpSurrogate | None = None,
 ) -> RunResult:
     """Simulate a scene; the Python twin of ``python -m cardiosoft.simulate``.
@@ -79,6 +81,8 @@ def run(
       robust at high rates); see :func:`cardiosoft.batch.solve_beats`.
     - ``energy``: keep each beat's energy account; adds ``energy_efficiency`` (work delivered
       past the outlet over work put in, in [0, 1] at any rate) and ``energy_residual``.
+    - ``max_steps``: the most solver steps per beat, [100, 10^7] (default: the preset's, 16384
+      or 65536 for "reference"); a stiff case that runs out of steps says so.
     - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate` (default: the shipped one).
 
     **Returns:** a :class:`~cardiosoft.results.RunResult`, one member per afterload. Each member
@@ -93,7 +97,13 @@ def run(
         labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
     else:
         labels = [scene.name]
-    return _simulate(scene, labels, {}, beats, steady, pump, energy)
+    config = None
+    if max_steps is not None:
+        if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer):
+            raise ValueError(f"max_steps = {max_steps!r}: allowed a whole number in [100, 1e7]")
+        check_range("max_steps", max_steps, "steps", 100, 1e7)
+        config = dataclasses.replace(default_config(scene), max_steps=int(max_steps))
+    return _simulate(scene, labels, {}, beats, steady, pump, energy, config)
 
 
 def sweep(
@@ -136,10 +146,10 @@ def sweep(
     return _simulate(scene, labels, members, beats, steady, pump)
 
 
-def _simulate(scene: Scene, labels, members: dict, beats, steady, pump, energy=False):
+def _simulate(scene: Scene, labels, members, beats, steady, pump, energy=False, config=None):
     """Solve the members (all the scene's afterloads by default) and label the records."""
     pump = load() if pump is None else pump
-    options = dict(beats=beats, steady=steady, energy=energy, pump=pump)
+    options = dict(beats=beats, steady=steady, energy=energy, pump=pump, config=config)
     if scene.static:
         static = solve_static(scene, **members, pump=pump)
         return RunResult(scene, member_results(labels, None, static, pump.domain))

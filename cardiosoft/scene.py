@@ -225,7 +225,9 @@ _NUMBERS = (
             when="water_column"),
     _Number("windkessel", "afterload.Rp_mmHg_s_per_ml", "mmHg s/ml", 0.0, 10.0, True, _R,
             index=0, when="windkessel3"),
-    _Number("windkessel", "afterload.C_ml_per_mmHg", "ml/mmHg", 0.0, 100.0, True, _C,
+    # 0.01 ml/mmHg (an arterial tree ~100x stiffer than a young adult's) at the least: below,
+    # the 3-element model's time constant Rp C drops under 1 ms and beat 1 ran out of steps
+    _Number("windkessel", "afterload.C_ml_per_mmHg", "ml/mmHg", 0.01, 100.0, False, _C,
             index=1, when="windkessel3"),
     _Number("windkessel", "afterload.Rd_mmHg_s_per_ml", "mmHg s/ml", 0.0, 10.0, True, _R,
             index=2, when="windkessel3"),
