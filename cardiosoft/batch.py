@@ -25,10 +25,11 @@ the scene's ``steady_tol`` (or exactly ``beats`` beats), every member at its own
 jitted, ``vmap``-ed call sharded over ``jax.devices()``. Numbers are array leaves: a new design,
 afterload, rate or tolerance does not recompile; a new batch size, effect or save mode does.
 
-**Save modes.** ``save="traces"`` keeps the last beat sampled at :data:`SAMPLES_PER_BEAT` times
-(the CLI's traces, the figures, the notebooks). ``save="metrics"`` keeps only the last beat's
-:class:`~cardiosoft.metrics.BeatMetrics`: each beat is reduced to its metrics inside the beat
-loop, so no sample outlives the beat it belongs to (the optimiser, the sweeps).
+**Save modes.** Beats are integrated saving only their end states; the last beat is integrated
+once more from its start, sampled at :data:`SAMPLES_PER_BEAT` times, and its
+:class:`~cardiosoft.metrics.BeatMetrics` computed from the samples. ``save="traces"`` returns
+those samples too (the CLI's traces, the figures, the notebooks); ``save="metrics"`` returns
+the metrics only, nothing of the beat's length (the optimiser, the sweeps).
 
 **Derivatives.** The beat loop is a ``while_loop`` whose number of beats depends on the data,
 so the solve is differentiable in forward mode: ``jax.jvp`` and ``jax.jacfwd`` of any metric with

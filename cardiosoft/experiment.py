@@ -1,4 +1,4 @@
-"""``run()`` and ``sweep()``: a scene simulated as ``python -m cardiosoft.simulate`` does it.
+"""``run()`` and ``run_designs()``: a scene simulated as ``python -m cardiosoft.simulate`` does.
 
 Both are thin: they apply the user's overrides (user units) to the scene, hand the members to
 the public batch solve (:func:`cardiosoft.batch.solve_beats`, and
@@ -20,7 +20,7 @@ from cardiosoft.results import RunResult, member_results
 from cardiosoft.scene import ACCURACY, RANGES, Scene, load_scene
 from cardiosoft.units import mmHg
 
-__all__ = ["configure", "run", "sweep"]
+__all__ = ["configure", "run", "run_designs"]
 
 
 def configure(
@@ -106,7 +106,7 @@ def run(
     return _simulate(scene, labels, {}, beats, steady, pump, energy, config)
 
 
-def sweep(
+def run_designs(
     scene="bench-dynamic",
     designs=((4.0, 0.4),),
     *,

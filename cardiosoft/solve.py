@@ -326,10 +326,9 @@ def periodic_beats(
     - ``max_beats`` (static): the most beats; with ``tol = 0`` exactly that many are run.
     - ``tol``: steady-state tolerance in the units of :data:`PERIODIC_SCALES`.
     - ``config``: a :class:`SolverConfig`.
-    - ``observe``: ``(ts, ys) -> pytree``, applied to each beat's saved states; only its value
-      for the last beat is kept (:attr:`Beats.observed`). ``None`` keeps the states themselves.
-      A reduction (the beat's metrics) keeps the loop's carry small: nothing of the size of
-      ``ts`` need survive a beat.
+    - ``observe``: ``(ts, ys) -> pytree``, applied to the last beat's states at ``ts``
+      (:attr:`Beats.observed`); ``None`` keeps the states themselves. The beats before it are
+      integrated without samples (only their end states), the last once more from its start.
 
     Runs in one ``lax.while_loop``: jit it once, ``vmap`` it over parameters, and every element
     stops at its own steady state (the batch runs until the slowest is done). A failed beat
@@ -340,52 +339,49 @@ def periodic_beats(
     ftype = jnp.result_type(float)
     v_ref = total_volume(y0)
 
-    def one_beat(y):
+    def one_beat(y, save_ts):
         # Integrated in the beat's phase s = t / period over [0, 1]: with constant ends, diffrax's
         # end-of-interval bookkeeping (t1 minus 100 ULP, ~1500 HLO ops per member) folds away at
         # compile time, while the period stays an array leaf (a new bpm does not recompile).
-        sol = integrate(
+        return integrate(
             _in_phase,
             y,
             0.0,
             1.0,
             args=(field, period),
-            ts=ts / period,
+            ts=save_ts,
             jump_ts=jump_ts / period,
             config=config,
         )
-        return sol.ys, sol.result, sol.stats["num_steps"]
 
+    # Beat after beat saving only each beat's end (interpolating the samples of every beat was
+    # measured as half to three quarters of the cost: benchmarks/sweep_throughput.py); the
+    # last beat is then integrated once more from its start, the same steps, with its samples.
     def body(carry):
-        y, _, beats, _, drift, _, _ = carry
-        ys, result, steps = one_beat(y)
-        y_end = jax.tree_util.tree_map(lambda a: a[-1], ys)
+        y, beats, _, drift, _, _ = carry
+        sol = one_beat(y, None)
+        y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
         residual = _cycle_residual(y, y_end)
         drift = jnp.maximum(drift, jnp.abs(total_volume(y_end) - v_ref) / jnp.abs(v_ref))
-        return y_end, observe(ts, ys), beats + 1, residual, drift, result, (steps, y)
+        return y_end, beats + 1, residual, drift, sol.result, y
 
     def cond(carry):
-        _, _, beats, residual, _, result, _ = carry
+        _, beats, residual, _, result, _ = carry
         ok = result == diffrax.RESULTS.successful
         return ok & (beats < max_beats) & ((beats == 0) | (residual > tol))
 
-    # the carry's slot for the observation, shaped as a beat at rest would give it
-    ys_rest = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (*ts.shape, *jnp.shape(a))), y0)
-    observed0 = jax.tree_util.tree_map(
-        lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(observe, ts, ys_rest)
-    )
     carry = (
         y0,
-        observed0,
         jnp.array(0),
         jnp.array(jnp.inf, ftype),
         jnp.zeros((), ftype),
         diffrax.RESULTS.successful,
-        (jnp.array(0), y0),
+        y0,
     )
-    y_end, observed, beats, residual, drift, result, (steps, y_start) = jax.lax.while_loop(
-        cond, body, carry
-    )
+    y_end, beats, residual, drift, result, y_start = jax.lax.while_loop(cond, body, carry)
+    last = one_beat(y_start, ts / period)
+    observed = observe(ts, last.ys)
+    steps = last.stats["num_steps"]
     return Beats(ts, observed, y_start, y_end, beats, residual, drift, result, steps, jnp.array(0))
 
 

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from cardiosoft.experiment import run, sweep
+from cardiosoft.experiment import run, run_designs
 from cardiosoft.pump import Domain
 from cardiosoft.results import summary_records
 from cardiosoft.units import mmHg
@@ -72,8 +72,8 @@ def test_a_windkessel_scene_has_no_static_stroke_volume_in_its_summary():
     ("call", "match"),
     [
         (lambda: run("bench-dynamic", beats=2.5), "beats = 2.5"),
-        (lambda: sweep("bench-dynamic", designs=[]), "designs = "),
-        (lambda: sweep("bench-dynamic", designs=[(4.0,)]), "designs = "),
+        (lambda: run_designs("bench-dynamic", designs=[]), "designs = "),
+        (lambda: run_designs("bench-dynamic", designs=[(4.0,)]), "designs = "),
         (lambda: run("bench-dynamic", steady="newton"), "steady = 'newton'"),
     ],
 )
