@@ -379,7 +379,8 @@ def periodic_beats(
         y0,
     )
     y_end, beats, residual, drift, result, y_start = jax.lax.while_loop(cond, body, carry)
-    last = one_beat(y_start, ts / period)
+    # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
+    last = one_beat(y_start, jnp.clip(ts / period, 0.0, 1.0))
     observed = observe(ts, last.ys)
     steps = last.stats["num_steps"]
     return Beats(ts, observed, y_start, y_end, beats, residual, drift, result, steps, jnp.array(0))
