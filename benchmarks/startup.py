@@ -63,8 +63,7 @@ def main(argv=None) -> int:
     )
 
     imports = [
-        _wall([sys.executable, "-c", "import jax; import cardiosoft"])
-        for _ in range(args.repeat)
+        _wall([sys.executable, "-c", "import jax; import cardiosoft"]) for _ in range(args.repeat)
     ]
     print(
         f"2. imports (jax, diffrax, equinox, cardiosoft): best {min(imports):.1f} s "

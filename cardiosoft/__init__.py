@@ -21,7 +21,7 @@ from cardiosoft.batch import scene_circuit as scene_circuit
 from cardiosoft.batch import solve_beats as solve_beats
 from cardiosoft.batch import solve_static as solve_static
 from cardiosoft.experiment import run as run
-from cardiosoft.experiment import sweep as sweep
+from cardiosoft.experiment import run_designs as run_designs
 from cardiosoft.geometry import Shell as Shell
 from cardiosoft.geometry import apex_motion as apex_motion
 from cardiosoft.geometry import cavity_volume as cavity_volume
@@ -32,6 +32,9 @@ from cardiosoft.results import summary_records as summary_records
 from cardiosoft.scene import load_scene as load_scene
 from cardiosoft.solve import SolverConfig as SolverConfig
 from cardiosoft.solve import preset as preset
+from cardiosoft.sweep import design_sweep as design_sweep
+from cardiosoft.verify import Verification as Verification
+from cardiosoft.verify import verify_run as verify_run
 
 # --- end of the public API --------------------------------------------------------------------
 
@@ -42,16 +45,19 @@ __all__ = [
     "Shell",
     "SolverConfig",
     "StaticSolution",
+    "Verification",
     "apex_motion",
     "cavity_volume",
+    "design_sweep",
     "load_pump",
     "load_scene",
     "preset",
     "run",
+    "run_designs",
     "scene_circuit",
     "solve_beats",
     "solve_static",
     "summary_records",
-    "sweep",
     "units",
+    "verify_run",
 ]

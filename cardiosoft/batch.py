@@ -146,11 +146,16 @@ def scene_circuit(
         pump,
         scene.omega,
         actuation,
-        **scene.afterload.blocks(scene, scene.afterloads[0] if afterload is None else afterload),
+        **scene.afterload.blocks(scene, _head(scene) if afterload is None else afterload),
         cable_friction=friction,
         viscoelasticity=viscoelasticity,
         energy=energy,
     )
+
+
+def _head(scene: Scene):
+    """The first column head of a water-column scene; None (unused) for a Windkessel."""
+    return scene.afterloads[0] if scene.afterload.has_heads else None
 
 
 def default_config(scene: Scene) -> SolverConfig:
@@ -456,11 +461,13 @@ def solve_static(
     shortening=None,
     afterload=None,
     pump: PumpSurrogate | None = None,
+    n_points: int = 401,
 ) -> StaticSolution:
     """Quasi-static strokes of a water-column scene's members (no ODE; :mod:`cardiosoft.static`).
 
     The arguments are those of :func:`solve_beats`; the rate plays no part. Any water-column
-    scene works, dynamic ones too (the paper's static SV beside the dynamic one).
+    scene works, dynamic ones too (the paper's static SV beside the dynamic one). ``n_points``:
+    the pull grid of each stroke (its peak force is the largest of them).
     """
     scene = scene if isinstance(scene, Scene) else load_scene(scene)
     if not scene.afterload.has_heads:
@@ -471,7 +478,7 @@ def solve_static(
     k = column_stiffness(area, RHO_WATER, G) if scene.has("column_rise") else 0.0
     friction = scene.cable_friction if scene.has("cable_friction") else 0.0
     out = static_strokes(
-        pump, members["omega"], members["shortening"], members["afterload"], k, friction
+        pump, members["omega"], members["shortening"], members["afterload"], k, friction, n_points
     )
     return StaticSolution(members, *out)
 

@@ -6,6 +6,9 @@
 Runs the ``bench-dynamic`` scene (the paper's water-column bench) at 30, 60 and 90 mmHg by
 default and prints stroke volumes, peak force, mechanical work, efficiency and the beats to
 steady state. ``--out DIR`` writes ``summary.json``, ``traces.csv`` and a Fig. 10-style figure.
+Exit status: 0 when every member is solved, at its periodic steady state and inside the
+surrogate's fitted range; 1 when the table is printed but some member is not (a warning line
+each says why); 2 for bad input.
 The numerics live in :func:`cardiosoft.experiment.run`; this module only parses and prints.
 """
 
@@ -54,6 +57,25 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--beats", type=int, help="run exactly this many beats (default: until steady)")
     p.add_argument(
+        "--steady",
+        choices=("beats", "shooting"),
+        default="beats",
+        help="reach the periodic steady state beat after beat (default) or by Newton shooting "
+        "on the one-beat map (robust at high rates; compiles longer)",
+    )
+    p.add_argument(
+        "--max-steps",
+        type=int,
+        metavar="N",
+        help="most solver steps per beat, [100, 1e7] (default: the preset's)",
+    )
+    p.add_argument(
+        "--energy",
+        action="store_true",
+        help="keep each beat's energy account: summary.json gets energy_efficiency (work "
+        "delivered past the outlet / work put in) and the account's closing error",
+    )
+    p.add_argument(
         "--accuracy",
         choices=ACCURACY,
         help="solver preset (default: the scene's)",
@@ -65,6 +87,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", metavar="DIR", help="write summary.json, traces.csv, figure.png")
     p.add_argument("--no-plot", action="store_true", help="with --out: skip the figure")
+    p.add_argument(
+        "--verify",
+        action="store_true",
+        help="rerun at the reference preset and print each metric's difference, the run's "
+        "numerical error estimate (calculation verification); recorded in summary.json",
+    )
     p.add_argument("--force", action="store_true", help="overwrite existing files in --out")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return p
@@ -142,7 +170,7 @@ def _paper_values():
     }
 
 
-def _write_outputs(out_dir: Path, result, records, plot: bool) -> list[Path]:
+def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> list[Path]:
     """Write every file to a staging folder first, then move them all into place."""
     import shutil
     import tempfile
@@ -160,6 +188,7 @@ def _write_outputs(out_dir: Path, result, records, plot: bool) -> list[Path]:
                     "omega": result.scene.omega,
                     "shortening": result.scene.shortening,
                     "records": records,
+                    **(extra or {}),
                 },
                 indent=2,
             )
@@ -212,15 +241,14 @@ def main(argv=None) -> int:
     from cardiosoft._cli import fail
     from cardiosoft._validate import check_range
     from cardiosoft.experiment import configure, run
-    from cardiosoft.files import refuse_overwrite
+    from cardiosoft.files import check_writable_folder, refuse_overwrite
     from cardiosoft.results import summary_records
 
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     try:
         out_dir = Path(args.out) if args.out else None
         if out_dir is not None:
-            if out_dir.exists() and not out_dir.is_dir():
-                raise ValueError(f"--out {out_dir} exists and is not a folder")
+            check_writable_folder(out_dir)
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
         scene = configure(
@@ -243,10 +271,17 @@ def main(argv=None) -> int:
         n = max(1, len(scene.afterloads))
         say(f"{scene.name}: {n} afterload(s), {scene.bpm:g} bpm; {what} ...")
         start = time.perf_counter()
-        result = run(scene, beats=args.beats)
+        result = run(
+            scene,
+            beats=args.beats,
+            steady=args.steady,
+            energy=args.energy,
+            max_steps=args.max_steps,
+        )
     except (ValueError, FileNotFoundError) as err:
         return fail(err)
-    say(f"done in {time.perf_counter() - start:.1f} s")
+    run_seconds = time.perf_counter() - start
+    say(f"done in {run_seconds:.1f} s")
     records = summary_records(result)
     if not args.quiet:
         paper = _paper_values() if args.compare_paper else None
@@ -258,10 +293,26 @@ def main(argv=None) -> int:
         for m in result.members:
             if not m.ok:
                 print(f"warning: {m.label}: {m.message}", file=sys.stderr)
+            for what in m.flags:
+                print(f"warning: {m.label}: {what}", file=sys.stderr)
+    extra = None
+    if args.verify:
+        from cardiosoft.verify import verify_run
+
+        say("verifying: rerunning tighter (the reference preset; a finer pull grid) ...")
+        check = verify_run(result, beats=args.beats, steady=args.steady)
+        extra = {"verification": check.record()}
+        if not args.quiet:
+            print(check.table(run_seconds=run_seconds))
     if out_dir is not None:
-        for path in _write_outputs(out_dir, result, records, plot=not args.no_plot):
+        try:
+            written = _write_outputs(out_dir, result, records, not args.no_plot, extra)
+        except OSError as err:  # checked before the run; the system can still refuse
+            return fail(ValueError(f"--out {out_dir}: {err.strerror or err}; nothing written"))
+        for path in written:
             say(f"wrote {path}")
-    return 0 if result.ok else 1
+    # 1: printed, but some member is not to be trusted as it is (module docstring)
+    return 0 if result.ok and not result.flagged else 1
 
 
 if __name__ == "__main__":

@@ -131,20 +131,23 @@ def quasi_static_stroke(
 
 
 @eqx.filter_jit
-def static_strokes(pump: PumpSurrogate, omega, shortening, afterload, k=0.0, friction=0.0):
+def static_strokes(
+    pump: PumpSurrogate, omega, shortening, afterload, k=0.0, friction=0.0, n_points: int = 401
+):
     """Quasi-static strokes of a batch (leading axis) as the bench's load cell sees them.
 
     ``omega``, ``shortening`` (C) and ``afterload`` (column head, Pa) are 1-D arrays of equal
     length; ``k`` the column stiffness (Pa/m^3); ``friction`` the capstan exponent mu theta of
     :class:`~cardiosoft.circuit.CableFriction` (0 without friction): a slow pull meets the
-    factor ``exp(mu theta)`` on the force and so on the work.
+    factor ``exp(mu theta)`` on the force and so on the work. ``n_points`` (static): the pull
+    grid of each stroke (:func:`quasi_static_stroke`).
 
     **Returns:** ``(stroke_volume m^3, peak_force N, mech_work J, efficiency)``, each per member,
     the efficiency the paper's ``P_a SV / M``.
     """
 
     def one(o, c, p):
-        return quasi_static_stroke(pump, o, c * pump.cable_length(o), p, k)
+        return quasi_static_stroke(pump, o, c * pump.cable_length(o), p, k, n_points=n_points)
 
     out = jax.vmap(one)(omega, shortening, afterload)
     factor = jnp.exp(friction)

@@ -70,7 +70,7 @@ def test_wheel_installs_and_simulate_compares_with_the_paper(tmp_path):
     assert (weights, rows) == ("ss950-v2.eqx", "3")
 
     out = subprocess.run(
-        [python, "-m", "cardiosoft.simulate", "--bpm", "30", "--compare-paper", "--beats", "2"],
+        [python, "-m", "cardiosoft.simulate", "--bpm", "30", "--compare-paper"],
         capture_output=True,
         text=True,
         timeout=600,

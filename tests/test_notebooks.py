@@ -1,64 +1,58 @@
-"""Execute every notebook in notebooks/ and check one key number of each against its source.
+"""Execute every notebook with a real Jupyter kernel and check what it stores.
 
-Jupyter is not a dependency: a notebook is read as nbformat-4 JSON, its code cells are joined and
-``exec``-ed in a fresh namespace with the working directory at the repository root and the Agg
-backend, the way ``jupyter nbconvert --execute`` would run them top to bottom. Notebooks are
-stored without outputs.
+The notebooks are stored executed, outputs and figures included (``python notebooks/execute.py``
+re-executes them in place). Each test executes one afresh the way Jupyter does: a kernel of
+this Python (``sys.executable``), ``notebooks/`` as the working directory, and the environment
+without ``JAX_ENABLE_X64`` (float64 only if the notebook switches it on: a probe cell appended to
+the fresh copy asks the kernel). Then:
+
+- the stored notebook reads as executed: every code cell run, no error stored, a figure;
+- every printed number of the fresh execution equals the stored one, to the last printed digit
+  (``notebooks/execute.py``'s ``compare``: text outputs of every code cell, except cells tagged
+  ``timing``); ``accuracy.ipynb`` runs a smaller computation (``CARDIOSOFT_NOTEBOOK_SMOKE=1``),
+  whose table lines must each be a stored line;
+- a few key numbers, read from the kernel by the probe, against a source independent of the
+  notebook: the paper's anchors, the surrogate's model card, the paper's static SV +- SD, the
+  acceptance of ``--verify``.
 """
 
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 from pathlib import Path
 
-import matplotlib.pyplot as plt
-import numpy as np
+import nbformat
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+_spec = importlib.util.spec_from_file_location(
+    "notebook_execute", ROOT / "notebooks" / "execute.py"
+)
+nbexec = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(nbexec)
+
+NOTEBOOKS = nbexec.notebooks()
+SMOKE = {"accuracy"}
+"""Executed with ``CARDIOSOFT_NOTEBOOK_SMOKE=1``: a subset of the stored computation."""
+SLOW = {"fig10_bench", "accuracy", "design"}  # ~40 s, ~2.5 min and ~5 min on 2 CPU cores
+PROBES = {
+    "fig7_apex_motion": ("anchor_dz_mm", "anchor_dalpha_deg", "cavity_ml"),
+    "tables_fit": ("mae_table1_ml", "mae_table2_ml", "folds_wrong", "folds_right"),
+    "fig10_bench": ("static_sv_ml", "peak_force_N", "budget_total_N"),
+    "accuracy": ("ratios", "scenes_studied"),
+    "design": ("backwards_sv_ml", "sv70_ml", "lv_reached", "lv_max_sv"),
+}
+"""The notebook's variables the probe reads back (JSON) for its check; it always reads x64."""
 
 
-def read_notebook(path: Path) -> dict:
-    nb = json.loads(path.read_text(encoding="utf-8"))
-    assert nb.get("nbformat") == 4, f"{path.name}: not an nbformat-4 notebook"
-    assert isinstance(nb.get("cells"), list), f"{path.name}: no cell list"
-    for i, cell in enumerate(nb["cells"]):
-        assert cell.get("cell_type") in ("code", "markdown", "raw"), f"{path.name} cell {i}"
-        assert isinstance(cell.get("source"), (list, str)), f"{path.name} cell {i}: no source"
-    return nb
-
-
-def code_cells(nb: dict) -> list[str]:
-    return [
-        "".join(cell["source"]) if isinstance(cell["source"], list) else cell["source"]
-        for cell in nb["cells"]
-        if cell["cell_type"] == "code"
-    ]
-
-
-def execute(path: Path, monkeypatch) -> dict:
-    """Run the notebook's code cells in order; return the namespace they left."""
-    nb = read_notebook(path)
-    stored = [
-        i
-        for i, cell in enumerate(nb["cells"])
-        if cell["cell_type"] == "code"
-        and (cell.get("outputs") or cell.get("execution_count") is not None)
-    ]
-    assert not stored, f"{path.name}: cells {stored} have stored outputs; clear them"
-    cells = code_cells(nb)
-    assert cells, f"{path.name}: no code cells"
-    source = "\n\n".join(cells)
-    monkeypatch.chdir(ROOT)
-    plt.switch_backend("Agg")
-    namespace = {"__name__": "__main__", "__file__": str(path)}
-    try:
-        exec(compile(source, str(path), "exec"), namespace)
-    finally:
-        plt.close("all")
-    return namespace
+def probe_code(names) -> str:
+    values = ", ".join(f"{n!r}: np.asarray({n}).tolist()" for n in names)
+    return (
+        "import json as _json\nimport jax as _jax\nimport numpy as np\n"
+        f"print(_json.dumps({{'x64': bool(_jax.config.jax_enable_x64), {values}}}))"
+    )
 
 
 def read_csv(path: Path) -> list[dict]:
@@ -67,37 +61,55 @@ def read_csv(path: Path) -> list[dict]:
     return list(csv.DictReader(lines))
 
 
-def check_fig7(ns: dict) -> None:
+def check_fig7(v: dict) -> None:
     # the paper's analysis-A3 boundary conditions (section II-D) and cavity (section II-F)
-    assert ns["anchor_dz_mm"] == pytest.approx(19.8, abs=0.1)
-    assert ns["anchor_dalpha_deg"] == pytest.approx(99.8, abs=0.1)
-    assert ns["cavity_ml"] == pytest.approx(108.6, abs=0.05)
+    assert v["anchor_dz_mm"] == pytest.approx(19.8, abs=0.1)
+    assert v["anchor_dalpha_deg"] == pytest.approx(99.8, abs=0.1)
+    assert v["cavity_ml"] == pytest.approx(108.6, abs=0.05)
 
 
-def check_tables(ns: dict) -> None:
+def check_tables(v: dict) -> None:
     # the model card records the metrics computed when the artifact was fitted
     card = json.loads((ROOT / "surrogates" / "ss950-v2.json").read_text())["metrics"]
-    assert ns["mae_table2_ml"] == pytest.approx(card["table2_mae_ml"], rel=1e-9)
-    assert ns["mae_table1_ml"] == pytest.approx(card["table1_mae_ml"], rel=1e-9)
-    assert ns["folds_wrong"] == card["folds_wrong"]
-    assert ns["folds_right"] + ns["folds_wrong"] == 25 + 9
+    assert v["mae_table2_ml"] == pytest.approx(card["table2_mae_ml"], rel=1e-9)
+    assert v["mae_table1_ml"] == pytest.approx(card["table1_mae_ml"], rel=1e-9)
+    assert v["folds_wrong"] == card["folds_wrong"]
+    assert v["folds_right"] + v["folds_wrong"] == 25 + 9
 
 
-def check_fig10(ns: dict) -> None:
+def check_fig10(v: dict) -> None:
     paper = read_csv(ROOT / "fit" / "data" / "fig10_bench.csv")
-    model = np.asarray(ns["static_sv_ml"])
-    assert model.shape == (len(paper),)
-    for row, sv in zip(paper, model, strict=True):
+    assert len(v["static_sv_ml"]) == len(paper)
+    for row, sv in zip(paper, v["static_sv_ml"], strict=True):
         mean, sd = float(row["static_sv_ml"]), float(row["static_sv_sd_ml"])
         assert abs(sv - mean) <= sd, (row["afterload_mmHg"], sv, mean, sd)
+    # the force budget adds up to the dynamic peak force at every afterload
+    assert v["budget_total_N"] == pytest.approx(v["peak_force_N"], rel=1e-9)
+
+
+def check_accuracy(v: dict) -> None:
+    assert v["scenes_studied"] == ["bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary"]
+    # --verify's estimate of the dynamic SV error within a factor 10 of the true error
+    assert all(0.1 <= r <= 10 for r in v["ratios"]), v["ratios"]
+
+
+def check_design(v: dict) -> None:
+    # the paper's dynamic SVs asked backwards: the verifying run() lands within the paper's SD
+    paper = read_csv(ROOT / "fit" / "data" / "fig10_bench.csv")
+    for row, sv in zip(paper, v["backwards_sv_ml"], strict=True):
+        mean, sd = float(row["dynamic_sv_ml"]), float(row["dynamic_sv_sd_ml"])
+        assert abs(sv - mean) <= sd, (row["afterload_mmHg"], sv, mean, sd)
+    assert all(abs(sv - 70.0) <= 0.5 for sv in v["sv70_ml"])  # the default tolerance, 0.5 ml
+    assert v["lv_reached"] is False and v["lv_max_sv"] < 70.0
 
 
 CHECKS = {
     "fig7_apex_motion": check_fig7,
     "tables_fit": check_tables,
     "fig10_bench": check_fig10,
+    "accuracy": check_accuracy,
+    "design": check_design,
 }
-SLOW = {"fig10_bench"}  # a diffrax run of three afterloads to steady state, ~20 s
 
 
 def _param(path: Path):
@@ -105,12 +117,77 @@ def _param(path: Path):
     return pytest.param(path, id=path.stem, marks=marks)
 
 
-def test_every_notebook_has_a_check():
+def test_every_notebook_has_a_check_and_a_line_in_the_readmes():
     assert NOTEBOOKS, "no notebooks found"
-    assert {p.stem for p in NOTEBOOKS} == set(CHECKS)
+    assert {p.stem for p in NOTEBOOKS} == set(CHECKS), "register each notebook in CHECKS"
+    assert set(PROBES) <= set(CHECKS)
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    listing = (ROOT / "notebooks" / "README.md").read_text(encoding="utf-8")
+    for path in NOTEBOOKS:
+        assert f"(notebooks/{path.name})" in readme, f"README.md does not link {path.name}"
+        assert path.name in listing, f"notebooks/README.md does not list {path.name}"
+
+
+def test_stored_notebooks_read_as_executed():
+    for path in NOTEBOOKS:
+        problems = nbexec.stored_problems(nbformat.read(path, as_version=4))
+        assert not problems, f"{path.name}: {problems}; run python notebooks/execute.py"
+
+
+def test_readme_figure_is_the_stored_notebooks():
+    stored = nbformat.read(ROOT / "notebooks" / "fig10_bench.ipynb", as_version=4)
+    png = nbexec.readme_figure(stored)
+    assert png is not None, "fig10_bench.ipynb has no cell tagged readme-figure with a figure"
+    assert (ROOT / "notebooks" / "figures" / "fig10_bench.png").read_bytes() == png
+    assert "](notebooks/figures/fig10_bench.png)" in (ROOT / "README.md").read_text()
+
+
+def _cell(source, outputs, tags=()):
+    cell = nbformat.v4.new_code_cell(source)
+    cell.outputs = [nbformat.v4.new_output("stream", name="stdout", text=t) for t in outputs]
+    if tags:
+        cell.metadata["tags"] = list(tags)
+    return cell
+
+
+def test_compare_follows_the_tags():
+    def nb(*cells):
+        out = nbformat.v4.new_notebook()
+        out.cells = list(cells)
+        return out
+
+    stored = nb(
+        _cell("a", ["x = 1.00\n"]),
+        _cell("b", ["took 3 s\n"], ["timing"]),
+        _cell("c", ["row 1\nrow 2\nrow 3\n"], ["subset"]),
+        _cell("d", ["full sweep: 8\n"], ["full-only"]),
+    )
+    same = nb(
+        _cell("a", ["x = 1.00\n"]),
+        _cell("b", ["took 5 s\n"], ["timing"]),
+        _cell("c", ["row 1\nrow 3\n"], ["subset"]),
+        _cell("d", ["full sweep: 3\n"], ["full-only"]),
+    )
+    assert nbexec.compare(stored, same, smoke=True) == []
+    # without smoke, a subset and a full-only cell are compared whole
+    assert len(nbexec.compare(stored, same, smoke=False)) == 2
+    changed = nb(
+        _cell("a", ["x = 1.01\n"]),
+        _cell("b", ["took 5 s\n"], ["timing"]),
+        _cell("c", ["row 1\nrow 4\n"], ["subset"]),
+        _cell("d", ["full sweep: 3\n"], ["full-only"]),
+    )
+    problems = nbexec.compare(stored, changed, smoke=True)
+    assert len(problems) == 2 and "'x = 1.00'" in problems[0] and "'row 4'" in problems[1]
 
 
 @pytest.mark.parametrize("path", [_param(p) for p in NOTEBOOKS])
-def test_notebook_runs(path: Path, monkeypatch):
-    ns = execute(path, monkeypatch)
-    CHECKS[path.stem](ns)
+def test_notebook_executes_to_its_stored_numbers(path: Path):
+    smoke = path.stem in SMOKE
+    stored = nbformat.read(path, as_version=4)
+    fresh, probed = nbexec.execute(path, smoke=smoke, probe=probe_code(PROBES.get(path.stem, ())))
+    problems = nbexec.compare(stored, fresh, smoke=smoke)
+    assert not problems, f"{path.name}:\n" + "\n".join(problems)
+    values = json.loads(probed.strip().splitlines()[-1])
+    assert values["x64"] is True, f"{path.name} does not switch float64 on"
+    CHECKS[path.stem](values)
