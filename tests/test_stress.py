@@ -1,0 +1,359 @@
+"""``cardiosoft.stress``, the hard-case suite (issue #14): its checks on made-up members (no
+solve), its plan (what it covers, and that it compiles few functions), hypothesis' draws (valid
+scenes over the whole allowed ranges), and the CI subset, ``python -m cardiosoft.stress --quick``,
+run as the CI runs it (a subprocess, under ~90 s on a loaded 2-core machine)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cardiosoft import stress
+from cardiosoft.metrics import BeatMetrics
+from cardiosoft.pump import Domain
+from cardiosoft.results import MemberResult, flags
+from cardiosoft.scene import RANGES, SCENE_NAMES, load_scene
+from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s_per_ml
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def good_metrics(**changes) -> dict[str, float]:
+    """A plausible member of the bench at 60 mmHg (SI), energy account included."""
+    m = {f.name: 0.0 for f in dataclasses.fields(BeatMetrics)}
+    m |= dict(
+        edv=110 * ml,
+        esv=40 * ml,
+        stroke_volume=70 * ml,
+        ejection_fraction=70 / 110,
+        cardiac_output=70 * ml,
+        peak_force=80.0,
+        mech_work=2.0,
+        reference_pressure=60 * mmHg,
+        hydraulic_work_paper=60 * mmHg * 70 * ml,
+        hydraulic_work_pull=0.6,
+        stroke_work=0.5,
+        efficiency=60 * mmHg * 70 * ml / 2.0,
+        min_pump_pressure=0.0,
+        max_pump_pressure=80 * mmHg,
+        min_cable_force=1.0,
+        work_in=2.0,
+        work_delivered=0.1,
+        work_lost=1.9,
+        stored_change=0.0,
+        energy_residual=1e-9,
+        energy_efficiency=0.05,
+    )
+    return m | changes
+
+
+def view(raw=None, *, succeeded=True, steady=True, message=None, drift=1e-15, static_p=None):
+    raw = good_metrics() if raw is None else raw
+    shown = dict(raw)
+    reasons = flags(shown, Domain())  # the library's own flags, as member_results makes them
+    if message is None:
+        message = "ok" if succeeded and steady else "?"
+    record = MemberResult(
+        "m", 60 * mmHg, message == "ok", message, 8, 0.001, drift, shown, {}, reasons
+    )
+    return stress.MemberView(raw, record, succeeded, steady, static_p)
+
+
+def checks(v) -> list[str]:
+    return [check for check, _ in stress.check_member(v)[0]]
+
+
+def test_a_good_member_passes_without_notes():
+    assert stress.check_member(view()) == ([], [])
+
+
+def test_nan_fails_unless_the_solver_failed_and_said_so():
+    nan = good_metrics(stroke_volume=math.nan)
+    assert checks(view(nan)) == ["finite"]
+    said = "solver failed in beat 3: The maximum number of solver steps was reached."
+    problems, notes = stress.check_member(view(nan, succeeded=False, message=said))
+    assert problems == [] and notes == [said]
+    # failed, but the message does not say so
+    assert "reported" in checks(view(nan, succeeded=False, message="ok"))
+
+
+def test_not_steady_is_flagged_when_said_and_fails_when_not():
+    said = "not steady after 40 beats (cycle change 0.03 > 0.01): a transient"
+    problems, notes = stress.check_member(view(steady=False, message=said))
+    assert problems == [] and notes == [said]
+    assert "steady" in checks(view(steady=False, message="ok"))
+    assert "steady" in checks(view(message="not steady after 3 beats"))
+
+
+def test_volume_drift_and_energy_residual_have_their_tolerances():
+    assert checks(view(drift=1e-9)) == []
+    assert checks(view(drift=2e-9)) == ["volume"]
+    assert checks(view(drift=math.nan)) == ["finite", "volume"]
+    assert checks(view(good_metrics(energy_residual=1e-6))) == []
+    assert checks(view(good_metrics(energy_residual=2e-6))) == ["energy"]
+    no_account = {k: v for k, v in good_metrics().items() if k != "energy_residual"}
+    assert checks(view(no_account)) == []
+
+
+def test_unphysical_metrics_fail_unless_a_flag_covers_them():
+    # pressures above the fitted range: flagged as extrapolated, which covers the volumes
+    hot = good_metrics(max_pump_pressure=200 * mmHg, esv=-1 * ml)
+    problems, notes = stress.check_member(view(hot))
+    assert problems == [] and any("above the fitted" in n for n in notes)
+    # the same volume with nothing flagged fails
+    assert checks(view(good_metrics(esv=-1 * ml))) == ["physical/volume"]
+    # a cable that would push: flagged, and it covers a negative peak force and work
+    pushing = good_metrics(min_cable_force=-3.0, peak_force=-1.0, mech_work=-0.1)
+    assert checks(view(pushing)) == []
+    # the paper's efficiency above 1 is set to NaN and flagged by results.flags
+    assert checks(view(good_metrics(efficiency=1.06))) == []
+    assert checks(view(good_metrics(efficiency=math.nan, mech_work=0.0))) == []
+
+
+def test_energy_efficiency_outside_0_1_fails_at_the_steady_state_only():
+    above = good_metrics(energy_efficiency=1.1)
+    assert checks(view(above)) == ["physical/energy efficiency > 1"]
+    below = good_metrics(energy_efficiency=-0.05)
+    assert checks(view(below)) == ["physical/energy efficiency < 0"]
+    said = "not steady after 40 beats (cycle change 0.03 > 0.01): a transient"
+    assert checks(view(above, steady=False, message=said)) == []
+    # within the account's own residual
+    assert checks(view(good_metrics(energy_efficiency=1 + 1e-7, energy_residual=1e-6))) == []
+
+
+def test_a_quasi_static_stroke_above_the_fitted_range_must_be_flagged():
+    raw = {
+        "static_stroke_volume": 60 * ml,
+        "static_peak_force": 90.0,
+        "static_mech_work": 3.0,
+        "static_efficiency": 0.4,
+    }
+    shown = dict(raw)
+    record = MemberResult(
+        "m", 150 * mmHg, True, "quasi-static", 0, 0.0, 0.0, shown, {}, flags(shown, Domain())
+    )
+    assert stress.check_member(stress.MemberView(raw, record, True, True, 149.0)) == ([], [])
+    problems, _ = stress.check_member(stress.MemberView(raw, record, True, True, 153.0))
+    assert [c for c, _ in problems] == ["extrapolated"]
+
+
+def test_known_failures_match_case_and_check(monkeypatch):
+    case = stress.Case(
+        "grid/bench-static/Omega=4,C=0.4,150mmHg", "grid", "bench-static", (), 4.0, 0.4, None, 150.0
+    )
+    monkeypatch.setattr(
+        stress, "KNOWN_FAILURES", (stress.KnownFailure(("*150mmHg",), "extrapolated", "why"),)
+    )
+    known = stress._outcome(case, [("extrapolated", "...")], [])
+    assert known.status == "known" and known.known == ("why",)
+    # a second problem that is not known makes the case fail
+    assert stress._outcome(case, [("extrapolated", "."), ("finite", ".")], []).status == "failed"
+    assert stress._outcome(case, [], ["flag"]).status == "flagged"
+    assert stress._outcome(case, [], []).status == "passed"
+
+
+def test_report_table_and_exit_status():
+    case = stress.Case("grid/x", "grid", "bench-static", (), 4.0, 0.4, None, 30.0)
+    report = stress.SuiteReport([stress.Outcome(case, "passed")], {"grid": 1.5})
+    assert report.exit_code == 0
+    report.outcomes.append(stress.Outcome(case, "failed", (("finite", "stroke_volume"),)))
+    assert report.exit_code == 1
+    lines = report.table().splitlines()
+    assert lines[0].split() == [
+        "group",
+        "cases",
+        "passed",
+        "flagged",
+        "failed",
+        "known",
+        "time",
+        "s",
+    ]
+    assert lines[1].split()[:6] == ["grid", "2", "1", "0", "1", "0"]
+    assert lines[-1].split()[0] == "total"
+    assert "run alone: from cardiosoft.units import mmHg; cs.solve_static(" in report.details()
+
+
+def test_reproduce_runs_the_case_alone():
+    batch = stress.stiff_batches(["lv-systemic"], [60.0])[0]
+    case = batch.cases()[5]
+    code = case.reproduce()
+    assert "cs.load_scene('lv-systemic').replace(" in code and "bpm=60.0" in code
+    namespace = {"cs": __import__("cardiosoft")}
+    # the scene it builds is the batch's (the solve itself is not run here)
+    scene_code = code.split("cs.solve_beats(")[1].split(", omega=")[0]
+    assert eval(scene_code, namespace) == batch.build_scene()
+
+
+# --- the plan ---------------------------------------------------------------------------------
+def test_full_grid_is_the_issue_grid():
+    grid = stress.grid_batches(SCENE_NAMES, stress.ACCURACY_PRESETS, stress.GRID_BPMS)
+    cases = [c for b in grid for c in b.cases()]
+    designs = len(stress.GRID_OMEGAS) * len(stress.GRID_SHORTENINGS)
+    assert designs == 12
+    for name in SCENE_NAMES:
+        scene = load_scene(name)
+        n = sum(c.scene == name for c in cases)
+        if scene.static:  # no rate, no preset: one batch of designs x heads
+            assert n == designs * 2
+        elif scene.afterload.has_heads:
+            assert n == 7 * designs * 2 * 3
+        else:  # a Windkessel has no column head to set
+            assert n == 7 * designs * 3
+    assert len({c.id for c in cases}) == len(cases)
+    heads = {c.afterload_mmHg for c in cases if c.afterload_mmHg is not None}
+    assert heads == {0.0, 150.0}
+
+
+def test_every_group_of_the_issue_is_planned():
+    batches = stress.plan(examples=2)
+    groups = {b.group for b in batches}
+    assert groups == set(stress.GROUPS) - {"cli"}
+    assert sum(b.cli for b in batches) == len(SCENE_NAMES)  # one CLI check per scene
+    stiff = {k for b in batches if b.group == "stiff" for k, _ in b.changes}
+    assert {
+        "column_diameter",
+        "tube_length",
+        "tube_diameter",
+        "loss_coefficient",
+        "windkessel",
+        "valve_resistance",
+    } <= stiff
+    valves = {v for b in batches if b.group == "valves" for _, v in b.changes}
+    assert {"ideal", stress.SHARP_SMOOTHING_MMHG * mmHg} <= valves
+    preloads = {v / mmHg for b in batches if b.group == "preload" for _, v in b.changes}
+    assert preloads == {0.0, 40.0}
+    assert {b.beats for b in batches if b.group == "long"} == {500}
+    for b in batches:
+        b.build_scene()  # every scene change is allowed
+
+
+def compiled_functions(batches) -> set:
+    """What the batch solve compiles anew for (its static arguments), per batch."""
+    keys = set()
+    for b in batches:
+        scene = b.build_scene()
+        if scene.static:
+            keys.add(("static", len(b)))
+            continue
+        max_steps = 65536 if scene.accuracy == "reference" else 16384
+        keys.add(
+            (scene.effects, scene.shape, scene.valve_kind, len(b), b.beats, b.steady, max_steps)
+        )
+    return keys
+
+
+def test_quick_subset_compiles_one_function_per_scene_structure():
+    quick = stress.plan(quick=True)
+    keys = compiled_functions(quick)
+    dynamic = [k for k in keys if k[0] != "static"]
+    assert ("static", 24) in keys and len(keys) == 3
+    assert len(dynamic) == 2  # the bench, a Windkessel
+    # the command line compiles its own solve: in the quick subset, the static scene's only
+    assert [b.scene for b in quick if b.cli] == ["bench-static"]
+    assert {b.group for b in quick} == set(stress.GROUPS) - {"cli", "long", "shooting"}
+    # the hypothesis members of the dynamic scenes, at the grid's rates
+    drawn = [b for b in quick if b.group == "property" and b.bpm is not None]
+    assert drawn and all(10 <= v <= 300 for b in drawn for v in b.bpm)
+
+
+def test_full_suite_compiles_a_handful_of_functions():
+    assert len(compiled_functions(stress.plan(examples=1))) <= 12
+
+
+# --- hypothesis' draws ------------------------------------------------------------------------
+def test_windkessel_ranges_are_those_the_scene_validates():
+    scene = load_scene("lv-systemic")
+    rp, c, rd = scene.windkessel
+    for k, index, scale in (
+        ("Rp", 0, mmHg_s_per_ml),
+        ("C", 1, ml_per_mmHg),
+        ("Rd", 2, mmHg_s_per_ml),
+    ):
+        lo, hi = stress.WINDKESSEL_RANGES[k]
+        for value, allowed in (
+            (hi, True),
+            (hi * 1.001, False),
+            (lo * 1.001 or 1e-9, True),
+            (lo, not stress.WINDKESSEL_OPEN_AT_LO[k]),
+        ):
+            numbers = [rp, c, rd]
+            numbers[index] = value * scale
+            try:
+                scene.replace(windkessel=tuple(numbers))
+            except ValueError:
+                assert not allowed, (k, value)
+            else:
+                assert allowed, (k, value)
+    lo, hi = stress.VALVE_RESISTANCE_RANGE
+    scene.replace(valve_resistance=(hi * mmHg_s_per_ml, hi * mmHg_s_per_ml))
+    for bad in (hi * 1.001, lo):
+        with pytest.raises(ValueError):
+            scene.replace(valve_resistance=(bad * mmHg_s_per_ml, 1.0))
+
+
+def test_hypothesis_draws_valid_scenes_over_the_whole_ranges():
+    batches = stress.property_batches(SCENE_NAMES, 25, seed=3)
+    assert {b.scene for b in batches} == {"bench-static", "bench-dynamic", "lv-systemic"}
+    assert len(batches) == 75
+    seen = {}
+    for b in batches:
+        scene = b.build_scene()  # validates every drawn number
+        assert len(b) == len(stress._design_members(scene))  # the grid's batch size
+        assert (b.bpm is None) == scene.static
+        for k, v in b.changes:
+            if isinstance(v, float):
+                seen.setdefault(k, []).append(v)
+        seen.setdefault("bpm", []).extend(b.bpm or ())
+        seen.setdefault("omega", []).extend(b.omega)
+        for field, values in (
+            ("omega", b.omega),
+            ("shortening", b.shortening),
+            ("bpm", b.bpm or ()),
+            ("afterloads", b.afterload_mmHg or ()),
+        ):
+            lo, hi = RANGES[field]
+            assert all(lo <= v <= hi for v in values)
+        assert all(v > 0 for v in b.bpm or ())
+    # not only round values, and the edges too
+    for k, values in seen.items():
+        assert any(v != round(v, 3) for v in values), k
+    assert max(seen["bpm"]) == 300.0 and min(seen["bpm"]) < 1.0
+    assert min(seen["omega"]) == 0.0 and max(seen["omega"]) == 6.0
+
+
+def test_hypothesis_draws_are_reproducible():
+    a = stress.property_batches(["lv-systemic"], 3, seed=5)
+    b = stress.property_batches(["lv-systemic"], 3, seed=5)
+    assert a == b
+    assert stress.property_batches(["lv-systemic"], 2, seed=5, skip_minimal=True) == a[1:]
+
+
+# --- running it -------------------------------------------------------------------------------
+def test_main_runs_the_static_scene_in_process(capsys):
+    rc = stress.main(["--scene", "bench-static", "--group", "grid", "--group", "cli"])
+    out = capsys.readouterr().out
+    assert "[  1/2] grid" in out and "[  2/2] cli" in out
+    table = out.split("\n\n")[1].splitlines()
+    assert table[0].split()[:6] == ["group", "cases", "passed", "flagged", "failed", "known"]
+    assert [line.split()[0] for line in table[1:]] == ["grid", "cli", "total"]
+    assert rc == (1 if " FAILED " in f" {out}" else 0)
+
+
+def test_quick_suite_passes():
+    """The CI subset, as CI runs it: no failure that is not a known one."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "cardiosoft.stress", "--quick"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert "group" in proc.stdout and "total" in proc.stdout, proc.stderr[-2000:]
+    assert "FAILED " not in proc.stdout, proc.stdout[-6000:]
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
