@@ -228,6 +228,22 @@ KNOWN_FAILURES: tuple[KnownFailure, ...] = (
         "in each beat (delivered -1e-4 J of 1.4e-3 J at Omega 0, C 0.01, 150 mmHg, 60 bpm)",
         max_shortening=0.01,
     ),
+    KnownFailure(
+        ("shooting/lv-systemic/*", "shooting/rv-pulmonary/*"),
+        "volume",
+        "steady='shooting' with a preload reports volume_drift 0.002..0.23: Newton moves the "
+        "pump volume and the Windkessel pressure to the orbit, but the supplied/drained volume "
+        "accumulators keep their guessed values, so the total is not that of the start "
+        "(solve.shoot_periodic: the closed-circuit elimination of V does not apply, and nothing "
+        "re-bases the accumulators)",
+    ),
+    KnownFailure(
+        ("grid/bench-dynamic/reference/300bpm/Omega=4,C=0.4,150mmHg",),
+        "energy",
+        "at 'reference' the energy account closes to 1.25e-6 on this member, just above 1e-6: "
+        "a beat of the period-2 swing that 300 bpm against 150 mmHg settles into (cycle change "
+        "862 ml/s at 40 and at 500 beats)",
+    ),
 )
 
 
