@@ -10,13 +10,16 @@ follows from U by automatic differentiation:
 
 Structure (DESIGN.md section 3.2), built in rather than hoped for:
 
-``U(V, x) = W(x) + Phi(V - V_eq(x); E(x))``
+``U(V, x) = W(x) + Phi(V - V_eq(x, V); E(x))``
 
-- ``V_eq(x) = V_u (1 - EF_0(C, Omega))`` is the zero-pressure volume, with ``V_u`` the unloaded
-  cavity (108.6 ml, :func:`cardiosoft.geometry.cavity_volume`). The zero-pressure ejection
-  fraction is ``EF_0 = 1 - exp(-h)`` with
+- ``V_eq(x, V) = V_u exp(-h_0(x) - f(x) exp(-k u(V)))`` is the zero-pressure volume, with
+  ``V_u`` the unloaded cavity (108.6 ml, :func:`cardiosoft.geometry.cavity_volume`), ``h_0``
+  what shortening alone takes and ``f`` what the folds take. Below ``V_u`` (``u = 0``) it is
+  ``V_u (1 - EF_0(C, Omega))``, the zero-pressure ejection fraction being
+  ``EF_0 = 1 - exp(-h)`` with
 
-  ``h = a(Omega) C + b(Omega) C^2 + (1 - p_3) S(Omega C) d(Omega C) + p_3 d_3``
+  ``h = h_0 + f``, ``h_0 = a(Omega) C + b(Omega) C^2``,
+  ``f = (1 - p_3) S(Omega C) d(Omega C) + p_3 d_3``
 
   - ``a = a_ax + a_hel tanh(Omega / 0.3)``: before buckling, longitudinal cables (Omega = 0)
     only shorten the shell, while any helix also squeezes it. Table I has no Omega between 0
@@ -32,15 +35,32 @@ Structure (DESIGN.md section 3.2), built in rather than hoped for:
   switch is non-decreasing in C; the switch is too wherever ``d_3`` exceeds the four-fold step
   at the three-fold transition, which the fit checks on a dense grid before it writes an
   artifact (``V_eq`` decreases with x).
+- **A swollen chamber resists the folds** (format 3): internal pressure stiffens a thin shell
+  against torsional buckling, so the folds' depth ``f`` is scaled by ``exp(-k u(V))``, with
+  ``u(V) = w softplus((V - V_u) / w) / V_u`` (w = 3 ml) a smooth, one-sided measure of how far
+  the cavity exceeds its unloaded volume: a shell stretched past its rest shape is in tension,
+  and tension resists the folds. The onset is not fitted: freed, ``V_ref`` went to 107.1 ml (V_u
+  108.6 ml, half a width away) along the fit's flattest direction (Gauss-Newton eigenvalue 0.18
+  of up to 1.3e6), where round-off would move it. By the Maxwell relation the potential guarantees,
+  ``dF/dP|_x = -dV/dx|_P``: a chamber that loses less volume per millimetre of pull when
+  swollen needs a force that rises more slowly with the afterload, the bend of the paper's
+  peak forces with afterload (Fig. 10(d): 0.99, then 0.30 N/mmHg). No law of the separable
+  form ``W(x) + Phi(V - V_eq(x))`` bends so (``fit.peak_force``). With ``k = 0`` this is format
+  2. ``V_eq`` now depends on V, so the chamber's convexity in V is no longer automatic: the fit
+  holds ``d2U/dV2 >= 0.1 E_u`` over the domain as a hard constraint and checks it on a dense
+  grid before it writes an artifact (``fit.fitting.check_convexity``): one volume per pull and
+  pressure, no hidden snap. Below ``V_u`` nothing changes, so Table I (zero pressure, cavity
+  below V_u) is the same as without swelling.
 - ``W(x)`` is the strain energy at zero pressure. Its force ``W'(x) = K x / (1 + (x/x_b)^2)^g``
   rises linearly, peaks near the buckling pull ``x_b = L C_b`` (the step's centre,
   ``C_b = tau / Omega``, tau the step's twist) and falls as the folds form (Fig. 10(d)): U is
   not convex in x. Under displacement control that is stable; under force control it snaps through.
 - ``Phi(s; E) = (E / beta^2) (cosh(beta s) - 1)`` is the chamber's elastic energy about the
-  zero-pressure volume: ``P = (E / beta) sinh(beta s)`` and ``d2U/dV2 = E cosh(beta s) > 0``
-  everywhere (a unique volume for each pressure). The chamber stiffens with pressure
-  (``dP/dV = sqrt(E^2 + beta^2 P^2)``), and folding softens it, ``E = E_u exp(-kappa EF_0)``:
-  the folded shell is more compliant (Fig. 10(a): static SV falls with afterload).
+  zero-pressure volume, ``s = V - V_eq(x, V)``. Without swelling ``P = (E / beta) sinh(beta s)``
+  and ``d2U/dV2 = E cosh(beta s) > 0``. The chamber stiffens with pressure
+  (``dP/dV = sqrt(E^2 + beta^2 P^2)`` without swelling), and folding softens it,
+  ``E = E_u exp(-kappa EF_0)`` (EF_0 of the unswollen chamber): the folded shell is more
+  compliant (Fig. 10(a): static SV falls with afterload).
 - ``U(V_u, 0) = 0`` and ``P(V_u, 0) = 0``: the unloaded shell at rest; ``P < 0`` below ``V_eq``
   (elastic recoil refills the chamber when the cables are released).
 
@@ -66,6 +86,7 @@ import numpy as np
 from cardiosoft._validate import check_range
 from cardiosoft.files import atomic_path, sha256
 from cardiosoft.geometry import Shell, cable_length, cavity_volume
+from cardiosoft.roots import implicit_scalar_root
 from cardiosoft.units import mmHg
 
 __all__ = [
@@ -76,12 +97,13 @@ __all__ = [
     "load",
 ]
 
-DEFAULT_ARTIFACT = "ss950-v2"
-"""Name of the surrogate shipped with the package (``surrogates/ss950-v2.eqx`` + ``.json``)."""
+DEFAULT_ARTIFACT = "ss950-v3"
+"""Name of the surrogate shipped with the package (``surrogates/ss950-v3.eqx`` + ``.json``)."""
 
-FORMAT_VERSION = 2
-"""Version 2: the EF_0 law of the module docstring (version 1 had a helix-independent linear
-rate, a fold depth linear in C and an additive three-fold term)."""
+FORMAT_VERSION = 3
+"""Version 3: the folds' depth yields to a swollen chamber (k). Version 2 had the same
+EF_0 law with the folds independent of the volume (a separable potential); version 1 a
+helix-independent linear rate, a fold depth linear in C and an additive three-fold term."""
 
 HELIX_SWITCH = 0.3
 """Omega over which the pre-buckling rate switches from longitudinal to helical (fixed)."""
@@ -93,6 +115,20 @@ class Domain(NamedTuple):
     omega: tuple[float, float] = (0.0, 6.0)
     shortening: tuple[float, float] = (0.0, 0.65)
     pressure_mmHg: tuple[float, float] = (-20.0, 150.0)
+
+
+SWELLING_WIDTH = 3e-6
+"""Width (m^3, 3 ml) of the smooth onset of swelling, u(V); not fitted."""
+
+VOLUME_NEWTON_STEPS = 12
+"""Newton steps of :meth:`Chamber.volume`: the residual is nearly linear in V, and the steps
+converge to round-off in 4-6 from the unswollen closed form (checked in tests/test_pump.py)."""
+
+
+def _elementwise_derivative(fn, V):
+    """d fn / dV of an elementwise ``fn``, in the broadcast shape of V and fn's numbers."""
+    V = jnp.asarray(V, dtype=float)
+    return jax.jvp(fn, (V,), (jnp.ones_like(V),))[1]
 
 
 def _softplus(z):
@@ -113,36 +149,75 @@ these values gave the smallest leave-one-out error on Table I."""
 class Chamber(eqx.Module):
     """The chamber law at one cable pull: what of U depends on the cavity volume V.
 
-    ``U_c(V) = (E / beta^2) (cosh(beta (V - V_eq)) - 1)`` (J), the term ``Phi`` of the module
-    docstring; :meth:`PumpSurrogate.chamber` builds it. The vector field of a simulation needs
-    only this (its pressure), so the zero-pressure law EF_0 is evaluated once per call.
+    ``U_c(V) = (E / beta^2) (cosh(beta s(V)) - 1)`` (J) with ``s = V - V_eq(V)``, the term
+    ``Phi`` of the module docstring; :meth:`PumpSurrogate.chamber` builds it. The vector field
+    of a simulation needs only this (its pressure), so the zero-pressure law is evaluated once
+    per call.
 
-    - ``rest_volume``: V_eq, the cavity volume at zero pressure (m^3).
+    - ``rest_volume``: V_eq of a chamber that is not swollen (m^3): the zero-pressure volume
+      of the folds at their full depth.
+    - ``fold_drop``: f, the folds' share of ``-log(V_eq / V_u)`` that swelling can undo.
+    - ``swelling``: k >= 0, how strongly a swollen chamber resists the folds.
+    - ``unloaded_volume``: V_u (m^3): the chamber swells above it; the unit of the measure.
     - ``elastance``: E, the stiffness at zero pressure (Pa/m^3).
     - ``stiffening``: beta, how fast the chamber stiffens with distension (1/m^3).
     """
 
     rest_volume: jax.Array
+    fold_drop: jax.Array
+    swelling: jax.Array
+    unloaded_volume: jax.Array
     elastance: jax.Array
     stiffening: jax.Array
+
+    def swelling_measure(self, V) -> jax.Array:
+        """u(V) = w softplus((V - V_u) / w) / V_u >= 0 (dimensionless), w = SWELLING_WIDTH:
+        how far V exceeds the unloaded cavity, smoothly, as a fraction of it."""
+        w = SWELLING_WIDTH
+        return w * _softplus((V - self.unloaded_volume) / w) / self.unloaded_volume
+
+    def equilibrium_volume(self, V) -> jax.Array:
+        """V_eq(V) (m^3): the zero-pressure volume of the folds as deep as the chamber at
+        volume V lets them be, ``V_eq0 exp(f (1 - exp(-k u(V))))`` (module docstring)."""
+        return self.rest_volume * jnp.exp(
+            -self.fold_drop * jnp.expm1(-self.swelling * self.swelling_measure(V))
+        )
+
+    def strain(self, V) -> jax.Array:
+        """s = V - V_eq(V) (m^3): the chamber's distension from its zero-pressure volume."""
+        return V - self.equilibrium_volume(V)
 
     def energy(self, V) -> jax.Array:
         """U_c (J) at cavity volume V (m^3)."""
         beta = self.stiffening
-        return self.elastance / beta**2 * (jnp.cosh(beta * (V - self.rest_volume)) - 1.0)
+        return self.elastance / beta**2 * (jnp.cosh(beta * self.strain(V)) - 1.0)
 
     def pressure(self, V) -> jax.Array:
-        """dU_c/dV (Pa), the chamber's elastic pressure: equal to dU/dV, as W does not hold V."""
-        return jax.grad(self.energy)(V)
+        """dU_c/dV (Pa), the chamber's elastic pressure: equal to dU/dV, as W does not hold V.
+        Elementwise: ``V`` and the chamber's numbers may be arrays that broadcast."""
+        return _elementwise_derivative(self.energy, V)
 
     def stiffness(self, V) -> jax.Array:
-        """d2U/dV2 = E cosh(beta (V - V_eq)) (Pa/m^3), positive everywhere."""
-        return self.elastance * jnp.cosh(self.stiffening * (V - self.rest_volume))
+        """d2U/dV2 (Pa/m^3). ``E cosh(beta s)`` without swelling; with it, positive on the
+        fitted domain by the fit's convexity constraint (``fit.fitting.check_convexity``)."""
+        return _elementwise_derivative(self.pressure, V)
 
     def volume(self, pressure) -> jax.Array:
-        """The unique V (m^3) at ``pressure`` (Pa): ``V_eq + asinh(beta P / E) / beta``."""
-        beta = self.stiffening
-        return self.rest_volume + jnp.arcsinh(beta * pressure / self.elastance) / beta
+        """The cavity volume V (m^3) at ``pressure`` (Pa), unique where U is convex in V.
+
+        Without swelling, closed form: ``V = V_eq + asinh(beta P / E) / beta``. With it, Newton
+        on ``asinh(beta P(V) / E) / beta``, nearly linear in V, from the closed form of the
+        unswollen chamber, differentiated implicitly
+        (:func:`cardiosoft.roots.implicit_scalar_root`).
+        """
+        beta, e = self.stiffening, self.elastance
+        target = jnp.arcsinh(beta * pressure / e) / beta
+        start = self.rest_volume + target
+
+        def residual(V):
+            return jnp.arcsinh(beta * self.pressure(V) / e) / beta - target
+
+        return implicit_scalar_root(residual, start, VOLUME_NEWTON_STEPS)
 
 
 class PumpSurrogate(eqx.Module):
@@ -177,6 +252,8 @@ class PumpSurrogate(eqx.Module):
     log_chamber_elastance: jax.Array = eqx.field(converter=jnp.asarray, default=22.0)
     fold_compliance: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
     log_stiffening: jax.Array = eqx.field(converter=jnp.asarray, default=11.0)
+    # a chamber swollen past V_u resists the folds: k = softplus(.)
+    swelling_resistance: jax.Array = eqx.field(converter=jnp.asarray, default=-20.0)
     # fold-count predictor: boundary in (Omega, C) and transition widths
     three_fold_boundary: jax.Array = eqx.field(converter=jnp.asarray, default=(1.5, 0.35))
     three_fold_width: jax.Array = eqx.field(converter=jnp.asarray, default=(0.1, 0.02))
@@ -193,8 +270,10 @@ class PumpSurrogate(eqx.Module):
         return cable_length(self.shell, omega)
 
     # ------------------------------------------------------------------------ volume law
-    def _ef_zero_pressure(self, shortening, omega):
-        """EF_0(C, Omega) in [0, 1): the zero-pressure ejection fraction (module docstring)."""
+    def _log_volume_drops(self, shortening, omega):
+        """(h_0, f): ``-log(V_eq / V_u)`` split into what shortening alone takes (h_0, the
+        terms in a and b) and what the folds take (f, the buckling step or the three-fold
+        depth); EF_0 = 1 - exp(-(h_0 + f)) for a chamber that is not swollen."""
         w = (omega - 3.0) / 2.0  # centred Omega keeps the raw parameters O(1)
         helix = jnp.tanh(omega / HELIX_SWITCH)
         a = _softplus(self.ef_linear[0]) + _softplus(self.ef_linear[1]) * helix
@@ -209,19 +288,31 @@ class PumpSurrogate(eqx.Module):
             omega, jnp.zeros_like(shortening)
         )
         folding = (1.0 - three) * step * depth + three * _softplus(self.three_fold_depth)
-        h = a * shortening + b * shortening**2 + folding
-        return -jnp.expm1(-h)
+        return a * shortening + b * shortening**2, folding
+
+    @property
+    def swelling(self) -> jax.Array:
+        """k >= 0: how strongly a swollen chamber resists the folds (module docstring)."""
+        return _softplus(self.swelling_resistance)
 
     def chamber(self, x, omega) -> Chamber:
-        """The chamber law at cable pull x (m): V_eq(x), E(x) and beta (:class:`Chamber`)."""
-        ef0 = self._ef_zero_pressure(x / self.cable_length(omega), omega)
+        """The chamber law at cable pull x (m): V_eq, its swelling, E(x) and beta."""
+        shortening_drop, fold_drop = self._log_volume_drops(x / self.cable_length(omega), omega)
+        ef0 = -jnp.expm1(-(shortening_drop + fold_drop))
         # folding softens the chamber: E = E_u exp(-kappa EF_0)
         elastance = jnp.exp(self.log_chamber_elastance - _softplus(self.fold_compliance) * ef0)
-        return Chamber(self.unloaded_volume * (1.0 - ef0), elastance, jnp.exp(self.log_stiffening))
+        return Chamber(
+            rest_volume=self.unloaded_volume * (1.0 - ef0),
+            fold_drop=fold_drop,
+            swelling=self.swelling,
+            unloaded_volume=self.unloaded_volume,
+            elastance=elastance,
+            stiffening=jnp.exp(self.log_stiffening),
+        )
 
     def zero_pressure_volume(self, x, omega) -> jax.Array:
         """V_eq(x; Omega) (m^3): the cavity volume at zero pressure for a cable pull x (m)."""
-        return self.chamber(x, omega).rest_volume
+        return self.volume(jnp.zeros_like(jnp.asarray(x, dtype=float)), x, omega)
 
     # ------------------------------------------------------------------------- the potential
     def _buckling_shortening_ratio(self, c, omega):
@@ -263,14 +354,12 @@ class PumpSurrogate(eqx.Module):
         return jax.grad(self.energy, argnums=1)(V, x, omega)
 
     def stiffness(self, V, x, omega) -> jax.Array:
-        """Chamber stiffness d2U/dV2 (Pa/m^3), positive everywhere by construction."""
+        """Chamber stiffness d2U/dV2 (Pa/m^3), positive on the fitted domain (fit's check)."""
         return self.chamber(x, omega).stiffness(V)
 
     def volume(self, pressure, x, omega) -> jax.Array:
-        """The unique cavity volume (m^3) at chamber pressure ``pressure`` (Pa) and pull x (m).
-
-        Closed form: ``V = V_eq + asinh(beta P / E) / beta``.
-        """
+        """The cavity volume (m^3) at chamber pressure ``pressure`` (Pa) and pull x (m), unique
+        where U is convex in V (:meth:`Chamber.volume`)."""
         return self.chamber(x, omega).volume(pressure)
 
     def zero_pressure_force(self, x, omega) -> jax.Array:

@@ -26,7 +26,9 @@ PARAMETER_MEANINGS = {
     "log_chamber_elastance": "log E_u [Pa/m^3]: chamber stiffness of the unfolded shell at P = 0",
     "fold_compliance": "kappa = softplus(p): E = E_u exp(-kappa EF_0), folding softens; "
     "held, not fitted (see held)",
-    "log_stiffening": "log beta [1/m^3]: P = (E/beta) sinh(beta (V - V_eq))",
+    "log_stiffening": "log beta [1/m^3]: P = dU/dV, U_c = (E/beta^2) (cosh(beta (V - V_eq)) - 1)",
+    "swelling_resistance": "k = softplus(p): a chamber swollen past V_u resists the folds, their "
+    "depth times exp(-k u(V)), u(V) = w softplus((V - V_u)/w) / V_u, w 3 ml",
     "three_fold_boundary": "(Omega, C) corner of the three-fold region (midpoints in the data)",
     "three_fold_width": "transition widths of the three-fold indicator in Omega and C",
 }
@@ -80,6 +82,43 @@ def check_volume_decreases(model: PumpSurrogate, n: int = 651) -> None:
         )
 
 
+def check_convexity(model: PumpSurrogate) -> float:
+    """The smallest d2U/dV2 / E_u on a dense (Omega, C, V) grid over the whole domain
+    (``report.CONVEXITY_CHECK_GRID``); raise unless it is at least
+    ``pipeline.CONVEXITY_MARGIN``.
+
+    The fit holds the margin on a coarser grid; this check is what an artifact must pass before
+    it is written: one equilibrium volume per pull at every pressure of the domain.
+    """
+    omegas, cs, n_v = report.CONVEXITY_CHECK_GRID
+    ratio = np.asarray(pipeline.stiffness_grid(model, omegas, cs, n_v))
+    i, j, _ = np.unravel_index(np.argmin(ratio), ratio.shape)
+    if not ratio.min() >= pipeline.CONVEXITY_MARGIN:
+        raise RuntimeError(
+            f"the potential is not convex enough in V: d2U/dV2 = {ratio.min():.3g} E_u at Omega "
+            f"{omegas[i]:.2f}, C {cs[j]:.3f}, below the margin {pipeline.CONVEXITY_MARGIN} E_u"
+        )
+    return float(ratio.min())
+
+
+def afterload_validation(model: PumpSurrogate, t: pipeline.Targets, left_out: int = 1):
+    """Stage 2 again without the peak force at afterload ``left_out`` (default 60 mmHg): the
+    force there is predicted, not fitted (issue #17). Returns ``(afterload mmHg, predicted N,
+    paper N)``."""
+    weight = np.ones_like(t.peak_force_weight)
+    weight[left_out] = 0.0
+    t_out = t._replace(peak_force_weight=weight)
+    model_out, rig_out, _ = pipeline.fit_mechanics(
+        pipeline.mechanics_start(model), pipeline.Rig(), t_out
+    )
+    predicted = pipeline.bench_prediction(model_out, rig_out, t.afterload).peak_force
+    return (
+        float(t.afterload[left_out] / mmHg),
+        float(predicted[left_out]),
+        float(t.peak_force[left_out]),
+    )
+
+
 def fit(data: datasets.PaperData, progress=print):
     """Fit stage 1 (with leave-one-out), the fold boundary and stage 2. Deterministic."""
     t = pipeline.targets(data)
@@ -108,7 +147,7 @@ def fit(data: datasets.PaperData, progress=print):
         for i in range(n)
     ]
     vu_ml = float(initial_model().unloaded_volume) / 1e-6
-    model = eqx.combine(stage1[0], static)
+    model = stage1_model = eqx.combine(stage1[0], static)
     check_volume_decreases(model)
     progress(
         f"stage 2: mechanics on the Fig. 10 bench and the FEM comparisons "
@@ -118,6 +157,15 @@ def fit(data: datasets.PaperData, progress=print):
     history = np.asarray(history)
     m = report.metrics(model, rig, data)
     m["table1_loo_mae_ml"] = float(np.mean(loo) * vu_ml)
+    check_convexity(model)  # m holds the same minimum, from report.metrics
+    progress("validation: stage 2 again without the 60-mmHg peak force")
+    p, predicted, paper = afterload_validation(stage1_model, t)
+    m["peak_force_left_out"] = {
+        "afterload_mmHg": p,
+        "predicted_N": predicted,
+        "paper_N": paper,
+        "relative_error": predicted / paper - 1.0,
+    }
     card = {
         "name": DEFAULT_ARTIFACT,
         "description": "Strain-energy surrogate U(V, x; Omega) of the paper's SS950 soft pump "

@@ -53,6 +53,7 @@ MECHANICS_FIELDS = (
     "softening_exponent",
     "log_chamber_elastance",
     "log_stiffening",
+    "swelling_resistance",
 )
 RIG_FIELDS = ("raw_cable_friction", "log_fem_pressure")  # fitted; the column diameter is held
 # Held at the values of the first ss950-v2 fit (issue #14). With them free, stage 2 had two
@@ -139,6 +140,7 @@ class Targets(NamedTuple):
     static_sv: np.ndarray  # m^3
     static_sv_sd: np.ndarray
     peak_force: np.ndarray  # N
+    peak_force_weight: np.ndarray  # 1 = fitted, 0 = left out (the afterload validation)
     mech_work: np.ndarray  # J, = P_a SV_dyn / e
     fem_efficiency_helical: float
     fem_efficiency_longitudinal: float
@@ -169,6 +171,7 @@ def targets(data: datasets.PaperData) -> Targets:
         static_sv=np.asarray(bench["static_sv_ml"]) * 1e-6,
         static_sv_sd=np.asarray(bench["static_sv_sd_ml"]) * 1e-6,
         peak_force=np.asarray(bench["peak_force_N"], float),
+        peak_force_weight=np.ones(len(p)),
         mech_work=np.asarray(p * bench["dynamic_sv_ml"] * 1e-6 / bench["efficiency"], float),
         fem_efficiency_helical=fem_value("efficiency", 4.0),
         fem_efficiency_longitudinal=fem_value("efficiency", 0.0),
@@ -261,15 +264,61 @@ def fem_prediction(model: PumpSurrogate, rig: Rig) -> FemPrediction:
     )
 
 
+CONVEXITY_MARGIN = 0.1
+"""The hard constraint on the potential's convexity in V: d2U/dV2 >= 0.1 E_u over the whole
+domain (E_u the unfolded chamber's stiffness at zero pressure), so one volume per pull and
+pressure. Without swelling the folds alone soften the chamber to exp(-kappa EF_0) E_u >= 0.48
+E_u; the swelling takes some of that and must not take it all."""
+CONVEXITY_FIT_MARGIN = 1.2 * CONVEXITY_MARGIN  # aimed at inside the fit: its grid is coarser
+CONVEXITY_SCALE = 1e-3  # residual unit of a shortfall below the margin, relative to E_u
+CONVEXITY_FIT_GRID = (13, 66, 24)  # Omega x C x V points of the constraint inside the fit
+
+
+def stiffness_grid(model: PumpSurrogate, omegas, shortenings, n_volumes: int):
+    """d2U/dV2 / E_u on a grid covering the fitted domain: (Omega, C, V), V from the volume at
+    the lowest pressure of the unswollen chamber to 10 ml above the highest pressure's volume
+    of a chamber with its folds fully undone (m^3; a superset of the domain's volumes)."""
+    p_lo, p_hi = (p * mmHg for p in model.domain.pressure_mmHg)
+    unfolded = jnp.exp(model.log_chamber_elastance)
+
+    def at(omega, c):
+        x = c * model.cable_length(omega)
+        ch = model.chamber(x, omega)
+        lo = ch.rest_volume + jnp.arcsinh(ch.stiffening * p_lo / ch.elastance) / ch.stiffening
+        hi = (
+            ch.rest_volume * jnp.exp(ch.fold_drop)
+            + jnp.arcsinh(ch.stiffening * p_hi / ch.elastance) / ch.stiffening
+            + 10e-6
+        )
+        volumes = lo + (hi - lo) * jnp.linspace(0.0, 1.0, n_volumes)
+        return jax.vmap(ch.stiffness)(volumes) / unfolded
+
+    grid = jax.vmap(lambda o: jax.vmap(lambda c: at(o, c))(jnp.asarray(shortenings)))
+    return grid(jnp.asarray(omegas))
+
+
+def convexity_residuals(model: PumpSurrogate):
+    """Shortfalls of d2U/dV2 below ``CONVEXITY_FIT_MARGIN`` E_u on the fit's grid, in units of
+    ``CONVEXITY_SCALE``: zero wherever the constraint holds."""
+    n_omega, n_c, n_v = CONVEXITY_FIT_GRID
+    d = model.domain
+    ratio = stiffness_grid(
+        model, jnp.linspace(*d.omega, n_omega), jnp.linspace(*d.shortening, n_c), n_v
+    )
+    return jnp.ravel(jax.nn.relu(CONVEXITY_FIT_MARGIN - ratio)) / CONVEXITY_SCALE
+
+
 def all_residuals(model, rig, t: Targets):
-    """Stage-2 residual vector: Fig. 10 bench and FEM comparisons, scaled to O(1)."""
+    """Stage-2 residual vector: Fig. 10 bench and FEM comparisons, scaled to O(1), and the
+    convexity constraint (zero where it holds)."""
     bench = bench_prediction(model, rig, t.afterload)
     fem = fem_prediction(model, rig)
     return jnp.concatenate(
         [
+            convexity_residuals(model),
             (bench.static_sv - t.static_sv) / (0.5 * t.static_sv_sd),
-            (bench.peak_force - t.peak_force) / (0.02 * t.peak_force),
-            (bench.mech_work - t.mech_work) / (0.04 * t.mech_work),
+            (bench.peak_force - t.peak_force) / (0.02 * t.peak_force) * t.peak_force_weight,
+            (bench.mech_work - t.mech_work) / (0.02 * t.mech_work),
             jnp.stack(
                 [
                     (fem.efficiency_helical - t.fem_efficiency_helical) / 0.02,
@@ -382,6 +431,7 @@ def mechanics_start(model: PumpSurrogate) -> PumpSurrogate:
             m.log_chamber_elastance,
             m.fold_compliance,
             m.log_stiffening,
+            m.swelling_resistance,
         ),
         model,
         (
@@ -390,5 +440,6 @@ def mechanics_start(model: PumpSurrogate) -> PumpSurrogate:
             jnp.array(np.log(mmHg / 0.2e-6)),
             jnp.array(HELD_FOLD_COMPLIANCE),
             jnp.array(np.log(1 / 10e-6)),
+            jnp.array(0.0),
         ),
     )
