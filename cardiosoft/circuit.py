@@ -75,7 +75,13 @@ class ShellViscoelasticity(eqx.Module):
     relaxation_time: jax.Array = eqx.field(converter=jnp.asarray)
 
     def strain(self, chamber: Chamber, volume, relaxed):
-        """V - V_eq(x) - s_v (m^3): the Maxwell spring's stretch, at the pull of ``chamber``."""
+        """V - V_eq(x) - s_v (m^3): the Maxwell spring's stretch, at the pull of ``chamber``.
+
+        V_eq is the unswollen chamber's (``Chamber.rest_volume``): the branch does not see the
+        folds yield to swelling. Measured 2026-12-02: with the swollen chamber's distension
+        instead (``Chamber.strain``), the bench calibration (``python -m fit.bench``) reached a
+        loss of 2.21 against 1.81, with the relaxation time running off (to 12 s) on the way.
+        """
         return volume - chamber.rest_volume - relaxed
 
     def energy(self, chamber: Chamber, volume, relaxed):

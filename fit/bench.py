@@ -17,8 +17,21 @@ the paper's sd) and the mechanical work of the pull, M = P_a SV / e (section II-
 units of 2 % of M, about the SVs' relative sd). Peak forces are not used: they validate. The
 column diameter and the cable friction come from the surrogate's fit and are not refitted.
 
+The calibration starts from the scene's values and takes a fixed 150 Adam steps. On the format-3
+surrogate (ss950-v3; started from the ss950-v2 calibration, 124.6 x 18.94 mm, r 0.136, tau
+0.387 s) it gave 276.3 x 19.09 mm, r 0.227, tau 2.25 s, loss 1.81. The data leave a flat valley
+along the tube's length and tau (measured 2026-12-02 on a first ss950-v3 candidate, with the
+swelling's onset fitted): 320 steps went from 274.6 mm, tau 1.76 s, loss 2.37 on to 319.5 mm,
+tau 2.49 s, loss 2.26, every residual moving by less than 0.1 of its unit. Neither end of the
+valley can be held: with the tube held at 124.6 mm the best loss was 26 (the 90-mmHg dynamic SV
+6 sd low: the column's inertia is what lifts the dynamic SVs above the static ones), with tau
+held at 0.387 s 2.61 with a 400-mm tube. The tube's inertance puts the column's sloshing near
+0.4-0.5 Hz, so beyond 30 bpm the bench rings: at 60 bpm the pump pressure swings to 167-212
+mmHg at 60 and 90 mmHg heads, outside the surrogate's fitted range (flagged).
+
 ``--peak-forces`` adds the three peak forces (residuals in units of 2 % of the force) to see
-whether the bench's unknowns could bring them within 5 %. Measured 2026-12-01: they do not. The
+whether the bench's unknowns could bring them within 5 %. On ss950-v2 (2026-12-01) they did
+not (10.6 % at best); on ss950-v3 the calibration without them already gives 6.2 %. The
 calibrated forces are printed, and the TOML lines are for that fit, not the shipped one.
 """
 

@@ -68,27 +68,27 @@ def runs(tmp_path_factory):
     """Every invocation at once (one real compile among them), then a rerun that must refuse to
     overwrite the first run's files."""
     root = tmp_path_factory.mktemp("simulate")
-    full, static = root / "bpm60", root / "static"
+    full, static = root / "bpm30", root / "static"
     procs = {
-        "full": launch("--bpm", 60, "--compare-paper", "--out", full),
+        "full": launch("--bpm", 30, "--compare-paper", "--out", full),
         "static": launch("--scene", "bench-static", "--no-plot", "--out", static),
     }
     procs |= {name: launch(*args, "--out", root / name) for name, args in BAD_INPUTS.items()}
     done = {name: finish(p) for name, p in procs.items()}
     before = snapshot(full) if full.is_dir() else {}
-    done["again"] = finish(launch("--bpm", 60, "--out", full))
+    done["again"] = finish(launch("--bpm", 30, "--out", full))
     return done, root, before
 
 
 def test_run_writes_summary_traces_and_figure(runs):
     done, root, _ = runs
-    full = root / "bpm60"
+    full = root / "bpm30"
     result = done["full"]
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in full.iterdir()) == ["figure.png", "summary.json", "traces.csv"]
     assert (full / "figure.png").read_bytes()[:8] == PNG_MAGIC
     summary = json.loads((full / "summary.json").read_text())
-    assert summary["scene"] == "bench-dynamic" and summary["bpm"] == 60
+    assert summary["scene"] == "bench-dynamic" and summary["bpm"] == 30
     records = summary["records"]
     assert [r["afterload_mmHg"] for r in records] == [30, 60, 90]
     for r in records:
@@ -110,7 +110,7 @@ def read_traces(folder):
 
 def test_traces_agree_with_the_summary(runs):
     _, root, _ = runs
-    full = root / "bpm60"
+    full = root / "bpm30"
     header, rows = read_traces(full)
     assert header[:4] == ["member", "time_s", "pull_mm", "volume_ml"]
     assert {"cable_force_N", "column_volume_ml", "outflow_ml_per_s"} <= set(header)
@@ -140,7 +140,7 @@ def test_traces_agree_with_the_summary(runs):
 
 def test_rerun_without_force_refuses_and_leaves_files_untouched(runs):
     done, root, before = runs
-    full = root / "bpm60"
+    full = root / "bpm30"
     result = done["again"]
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()

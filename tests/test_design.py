@@ -129,14 +129,15 @@ def test_the_reported_stroke_volumes_are_those_of_run(recovered, pump):
 
 def test_unreachable_target_returns_the_closest_design_and_the_range(pump):
     r = design.optimise(
-        "bench-dynamic", target_sv=150.0, afterload=HEADS, bpm=BPM, pump=pump, max_rounds=15
+        "bench-dynamic", target_sv=250.0, afterload=HEADS, bpm=BPM, pump=pump, max_rounds=15
     )
     assert r.reached is False
     assert "not reached" in r.message
     for t in r.targets:
         lo, hi = t.reachable_sv_ml
         assert all(math.isfinite(v) for v in (t.sv_ml, t.residual_ml, lo, hi, t.peak_force_N))
-        assert 0 <= lo < hi < 150.0
+        # 250 ml is beyond any ejection of a 108.6-ml cavity distended to at most ~150 ml
+        assert 0 <= lo < hi < 250.0
         assert t.sv_ml == pytest.approx(hi, abs=1.0)  # the closest is the largest SV seen
         assert t.residual_ml < -20
     # the pump ejects most with the most shortening

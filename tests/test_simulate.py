@@ -84,7 +84,11 @@ def test_bench_pump_plus_column_volume_is_constant_within_the_beat(twenty_beats)
 
 @pytest.mark.parametrize("bpm", [30, 180])
 def test_bench_is_finite_and_steady_at_extreme_rates_and_afterloads(bench, bpm):
-    result = run("bench-dynamic", bpm=bpm, afterload=[0, 75, 150])  # same structure as `bench`
+    """At 180 bpm the calibrated bench rings (its column sloshes near 0.4-0.5 Hz, fit/bench.py):
+    beat after beat is still 0.09 ml a beat off at 150 mmHg after 40 beats, so the orbit is
+    found by Newton shooting there (issue #14, item 6); at 30 bpm beat after beat."""
+    steady = "shooting" if bpm > 60 else "beats"
+    result = run("bench-dynamic", bpm=bpm, afterload=[0, 75, 150], steady=steady)
     assert [m.afterload / MMHG for m in result.members] == pytest.approx([0, 75, 150])
     for m in result.members:
         assert m.ok, m.message
@@ -256,17 +260,16 @@ def test_dynamic_peak_force_and_efficiency_are_near_the_papers(bench):
     """Peak forces are not used by the bench calibration (SVs and work are): they validate."""
     paper = load_paper_data().fig10_bench
     for i, m in enumerate(bench.members):
-        assert m.metrics["peak_force"] == pytest.approx(paper["peak_force_N"][i], rel=0.15)
+        assert m.metrics["peak_force"] == pytest.approx(paper["peak_force_N"][i], rel=0.10)
         assert m.metrics["efficiency"] == pytest.approx(paper["efficiency"][i], abs=0.02)
 
 
 @pytest.mark.xfail(
     strict=True,
-    reason="MODEL: dynamic peak force 54.3/73.4/88.6 N at 30 bpm against the paper's "
-    "54.4/84.2/93.3 N (Fig. 10(d)): the quasi-static force already rises too evenly with the "
-    "afterload (python -m fit --report); neither free-form laws of the surrogate's form "
-    "(python -m fit.peak_force) nor the bench's unknowns (python -m fit.bench --peak-forces) "
-    "bring it within 5 %",
+    reason="MODEL: dynamic peak force 53.8/81.8/99.0 N at 30 bpm against the paper's "
+    "54.4/84.2/93.3 N (Fig. 10(d)): 6.2 % high at 90 mmHg. The quasi-static forces are within "
+    "4.5 % (python -m fit --report); the bench calibration (python -m fit.bench) does not see "
+    "the forces, and its tube and shell relaxation are left on a flat valley by the data",
 )
 def test_dynamic_peak_force_within_five_percent(bench):
     paper = load_paper_data().fig10_bench
