@@ -11,8 +11,9 @@ prints, without asserting anything about time:
    from the ``timings`` of the ``design.json`` they write: start-up and imports, tracing and
    compiling the search's one function, the grid, the refinement rounds, the verifying
    ``run()`` (compiled meanwhile on a second thread from the start design); the CPU time of
-   the process (both threads); then one with ``--steady beats`` (beat after beat instead of
-   Newton shooting: a lighter compile);
+   the process (both threads). Each run with a cold compile cache (an empty folder), then
+   again with the warm one it filled (cardiosoft._cli), and the warm / cold ratio; then one
+   with ``--steady beats`` (beat after beat instead of Newton shooting: a lighter compile);
 2. in one process, through the Python API (XLA's default settings, or the caller's
    ``XLA_FLAGS``): the first target (compile included), then further targets of the same shape
    (compiled), each with its split;
@@ -27,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -51,15 +53,22 @@ def _split(timings: dict) -> str:
 
 def fresh(repeat: int) -> None:
     print(f"\n1. fresh processes: python -m cardiosoft.design {' '.join(QUESTION)}")
-    runs = [("shooting (default)", [])] * repeat + [("--steady beats", ["--steady", "beats"])]
-    for i, (label, extra) in enumerate(runs):
+    shooting = [("shooting, cold cache", [], "cold"), ("shooting, warm cache", [], "warm")]
+    runs = shooting * repeat + [("--steady beats, cold cache", ["--steady", "beats"], "cold")]
+    walls = {"cold": [], "warm": []}
+    cache, caches = None, []
+    for i, (label, extra, kind) in enumerate(runs):
+        if kind == "cold":  # a new, empty cache folder; the warm run after it reuses it
+            cache = tempfile.mkdtemp(prefix="cardiosoft-bench-cache-")
+            caches.append(cache)
+        env = {**ENV, "CARDIOSOFT_COMPILE_CACHE": cache}
         with tempfile.TemporaryDirectory() as tmp:
             start = time.perf_counter()
             cpu = os.times()
             command = [sys.executable, "-m", "cardiosoft.design", *QUESTION, *extra]
             out = subprocess.run(
                 [*command, "--out", tmp, "--no-plot"],
-                env=ENV,
+                env=env,
                 cwd=REPO,
                 capture_output=True,
                 text=True,
@@ -72,6 +81,8 @@ def fresh(repeat: int) -> None:
                 print(out.stderr)
                 raise SystemExit(f"python -m cardiosoft.design exited {out.returncode}")
             record = json.loads((Path(tmp) / "design.json").read_text())
+        if not extra:
+            walls[kind].append(wall)
         t = record["timings"]
         (target,) = record["targets"]
         print(
@@ -86,6 +97,13 @@ def fresh(repeat: int) -> None:
             f": {_split(t)}"
         )
         print(f"      (the verifying run() compiled on a second thread: {t['prewarm_s']:.1f} s)")
+    for folder in caches:
+        shutil.rmtree(folder, ignore_errors=True)
+    cold, warm = (sum(walls[k]) / len(walls[k]) for k in ("cold", "warm"))
+    print(
+        f"   shooting, mean wall: cold cache {cold:.1f} s, warm cache {warm:.1f} s; warm / cold "
+        f"{warm / cold:.2f}"
+    )
 
 
 def in_process() -> None:

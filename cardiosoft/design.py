@@ -1803,4 +1803,7 @@ if __name__ == "__main__":
     # 0.05 s a call on the bench), which a search of a few to tens of calls hardly notices. An
     # XLA_FLAGS of the user's own is left as it is.
     os.environ.setdefault("XLA_FLAGS", "--xla_backend_optimization_level=0")
+    from cardiosoft._cli import use_compile_cache
+
+    use_compile_cache()  # the next process loads what this one compiles
     raise SystemExit(main())

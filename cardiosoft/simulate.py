@@ -321,4 +321,7 @@ if __name__ == "__main__":
     # one solve (results agree to 1e-13). Set here, not in main(), so that it stays with this
     # process; an XLA_FLAGS of the user's own is left as it is.
     os.environ.setdefault("XLA_FLAGS", "--xla_backend_optimization_level=0")
+    from cardiosoft._cli import use_compile_cache
+
+    use_compile_cache()  # the next process loads what this one compiles
     raise SystemExit(main())

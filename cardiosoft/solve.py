@@ -380,6 +380,15 @@ def periodic_beats(
     y_end, beats, residual, _, drift, result, y_start = jax.lax.while_loop(cond, body, carry)
     # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
     last = one_beat(y_start, jnp.clip(ts / period, 0.0, 1.0))
+    # A sample that is not finite after a successful solve is a broken invariant, never a
+    # result: diffrax checks the save times with a host callback that raises, which the CLIs
+    # resolve to NaN instead so that their compile can be cached (cardiosoft._cli); diffrax then
+    # leaves every sample at inf and still reports success.
+    leaves = jax.tree_util.tree_leaves(last.ys)
+    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in leaves]))
+    result = diffrax.RESULTS.where(
+        diffrax.is_successful(result) & ~finite, diffrax.RESULTS.internal_error, result
+    )
     observed = observe(ts, last.ys)
     steps = last.stats["num_steps"]
     return Beats(ts, observed, y_start, y_end, beats, residual, drift, result, steps, jnp.array(0))

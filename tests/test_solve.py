@@ -50,3 +50,38 @@ def test_the_step_cap_can_be_lifted_and_then_pulses_are_lost():
     p = respond(Windkessel3(RP, C, RD), q, ts, max_step=None)
     mean = float(jnp.mean(p[ts > 15 * PERIOD]))
     assert mean < 0.5 * SV / PERIOD * (RP + RD)
+
+
+GUARD = """
+import jax, jax.numpy as jnp, diffrax
+jax.config.update("jax_enable_x64", True)
+from cardiosoft.solve import periodic_beats
+
+field = lambda t, y, args: {"volume": -y["volume"] + 1e-6 * jnp.sin(2 * jnp.pi * t)}
+
+@jax.jit
+def run(ts):
+    out = periodic_beats(
+        field, {"volume": jnp.array(1e-6)}, 1.0, ts, jump_ts=jnp.array([0.5]),
+        total_volume=lambda y: y["volume"], max_beats=3, tol=0.0,
+    )
+    return diffrax.is_successful(out.result), jnp.all(jnp.isfinite(out.observed["volume"]))
+
+print(*(bool(v) for v in run(jnp.array([0.0, 0.5, 1.0]))))
+print(*(bool(v) for v in run(jnp.array([0.0, 0.5, 0.4, 1.0]))))  # not increasing
+"""
+
+
+def test_samples_lost_to_a_nan_resolved_check_are_a_failure_not_a_result():
+    """With EQX_ON_ERROR=nan (the command lines', cardiosoft._cli), diffrax's check of the save
+    times gives inf samples and success; periodic_beats reports the solve as failed."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "EQX_ON_ERROR": "nan"}
+    out = subprocess.run(
+        [sys.executable, "-c", GUARD], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[:2] == ["True True", "False False"]

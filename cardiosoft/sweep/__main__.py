@@ -20,4 +20,7 @@ if __name__ == "__main__":
         os.environ["XLA_FLAGS"] = f"{_flags} {_count}".strip()
     # The library's main (cardiosoft.sweep), so that Dask pickles its functions by reference to
     # cardiosoft.sweep, not by value from __main__.
+    from cardiosoft._cli import use_compile_cache
+
+    use_compile_cache()  # the next process loads what this one compiles
     raise SystemExit(main())
