@@ -69,6 +69,7 @@ def _static_metrics(static: StaticSolution, i: int) -> dict[str, float]:
         "static_peak_force": float(static.peak_force[i]),
         "static_mech_work": float(static.mech_work[i]),
         "static_efficiency": float(static.efficiency[i]),
+        "static_max_pressure": float(static.max_pressure[i]),
     }
 
 
@@ -84,6 +85,9 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
 
     - the chamber pressure outside ``domain.pressure_mmHg`` (the pressures the surrogate was
       fitted on): its volumes, forces and every metric derived from them are extrapolated;
+    - the quasi-static stroke's largest pressure (``static_max_pressure``: the head plus the
+      column's rise) above the fitted range: its static SV, force and efficiency are
+      extrapolated (a stroke starts at the head, >= 0 mmHg: it cannot fall below the range);
     - a negative cable force: the prescribed pull would need the cables to push. A real cable
       goes slack instead and the shell then moves by itself, which this displacement-controlled
       model does not simulate; the result is reported, flagged, not corrected.
@@ -96,6 +100,12 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
             out.append(f"pump pressure down to {p_lo:.1f} mmHg, below the fitted {lo:g} mmHg")
         if p_hi > hi:
             out.append(f"pump pressure up to {p_hi:.1f} mmHg, above the fitted {hi:g} mmHg")
+    if metrics.get("static_max_pressure", -math.inf) / mmHg > hi:
+        p_hi = metrics["static_max_pressure"] / mmHg
+        out.append(
+            f"static pressure up to {p_hi:.2f} mmHg (head + column rise), {p_hi - hi:.2g} mmHg "
+            f"above the fitted {hi:g} mmHg"
+        )
     if metrics.get("min_cable_force", 0.0) < 0.0:
         out.append(
             f"cable force down to {metrics['min_cable_force']:.1f} N: the pull needs a cable that "

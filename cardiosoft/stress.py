@@ -211,13 +211,6 @@ KNOWN_FAILURES: tuple[KnownFailure, ...] = (
         "(its states are integrated at the preset's tolerances; commit 452229d measured 6e-5..6e-4 "
         "at 'default' and 1e-9..5e-8 at 'reference')",
     ),
-    KnownFailure(
-        ("*",),
-        "extrapolated",
-        "nothing flags a quasi-static stroke that leaves the surrogate's fitted pressures: "
-        "solve_static pulls to head + column rise, above 150 mmHg from a 150-mmHg head (or a "
-        "narrow column), and results.flags has no pressure to look at for it",
-    ),
     KnownFailure(_WINDKESSEL_CASES, "physical/losses", _VALVES),
     KnownFailure(_WINDKESSEL_CASES, "physical/energy efficiency > 1", _VALVES),
     KnownFailure(

@@ -52,6 +52,25 @@ def test_a_tiny_stroke_against_a_high_head_reports_no_efficiency_above_one():
     assert record["efficiency"] is None or 0 <= record["efficiency"] <= 1
 
 
+def test_a_quasi_static_stroke_above_the_fitted_range_is_flagged():
+    """From a 150-mmHg head the column's rise takes the quasi-static stroke above the fitted
+    150 mmHg (to 152.54 at Omega 4, C 0.4: the hard-case suite's number); at 60 mmHg it
+    stays inside. The flag gives the pressure, head + rho g SV / A_col, and how far."""
+    from cardiosoft.scene import load_scene
+    from cardiosoft.static import column_stiffness
+    from cardiosoft.units import RHO_WATER, G
+
+    result = run("bench-static", afterload=[60, 150])
+    scene = load_scene("bench-static")
+    k = float(column_stiffness(0.25 * math.pi * scene.column_diameter**2, RHO_WATER, G))
+    low, high = result.members
+    assert not any("static pressure" in f for f in low.flags)
+    p = (high.afterload + k * high.metrics["static_stroke_volume"]) / mmHg
+    assert p > Domain().pressure_mmHg[1]
+    (flag,) = [f for f in high.flags if f.startswith("static pressure")]
+    assert f"up to {p:.2f} mmHg" in flag and "above the fitted 150 mmHg" in flag
+
+
 def test_zero_shortening_gives_zero_stroke_and_valid_json():
     result = run("bench-static", shortening=0.0, afterload=[0, 150])
     records = summary_records(result)
