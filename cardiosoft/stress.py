@@ -173,13 +173,6 @@ class KnownFailure:
         )
 
 
-_WINDKESSEL_CASES = ("*/lv-systemic/*", "*/rv-pulmonary/*")
-_VALVES = (
-    "the smooth valve law q = w softplus(dp / w) / R is not passive: it passes forward flow "
-    "against a closing pressure difference (69 ml/s at dp = 0 in lv-systemic: w 0.5 mmHg, R "
-    "0.005 mmHg s/ml; 12.7 ml/s at dp = -1 mmHg), so the valves' loss (P_up - P_down) q is "
-    "negative and a small stroke delivers more than the cables and the atrium put in"
-)
 # Known failures: each entry is a library bug, found by this suite and reported; the cases are
 # printed as "known" with the reason, so that CI can run the suite while they stay visible.
 # Remove an entry when its bug is fixed (the suite then counts the cases as passed again).
@@ -211,8 +204,6 @@ KNOWN_FAILURES: tuple[KnownFailure, ...] = (
         "(its states are integrated at the preset's tolerances; commit 452229d measured 6e-5..6e-4 "
         "at 'default' and 1e-9..5e-8 at 'reference')",
     ),
-    KnownFailure(_WINDKESSEL_CASES, "physical/losses", _VALVES),
-    KnownFailure(_WINDKESSEL_CASES, "physical/energy efficiency > 1", _VALVES),
     KnownFailure(
         ("*/bench-dynamic/*",),
         "physical/energy efficiency < 0",

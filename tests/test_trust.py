@@ -136,6 +136,23 @@ def test_the_energy_account_closes_every_beat(name):
     assert float(m.work_lost.min()) >= 0.0
 
 
+def test_the_valves_only_dissipate():
+    """lv-systemic at its steady state: the valves' loss over a beat (P_up - P_down) q >= 0
+    and delivered <= work in. With the earlier smooth law w softplus(dp / w) / R (69 ml/s at
+    dp = 0) a small stroke (Omega 4, C 0.01) had a valve loss of -1.66e-3 J and an energy
+    efficiency of 1.119 (measured); now 3.4e-4 J and 0.971."""
+    from cardiosoft.batch import solve_beats
+
+    out = solve_beats(
+        "lv-systemic", omega=4.0, shortening=[0.01, 0.4], energy=True, save="traces"
+    )
+    m, valves = out.metrics, out.traces["valves"]
+    assert bool(out.steady.all())
+    assert (valves[:, -1] - valves[:, 0] >= 0.0).all()
+    assert (m.work_lost >= 0.0).all()
+    assert (m.energy_efficiency >= 0.0).all() and (m.energy_efficiency <= 1.0).all()
+
+
 def test_a_compliance_below_the_validated_minimum_is_refused():
     """1e-6 ml/mmHg passed validation and then ran out of steps in beat 1."""
     from cardiosoft.scene import load_scene
