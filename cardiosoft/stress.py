@@ -213,15 +213,6 @@ KNOWN_FAILURES: tuple[KnownFailure, ...] = (
         max_shortening=0.01,
     ),
     KnownFailure(
-        ("shooting/lv-systemic/*", "shooting/rv-pulmonary/*"),
-        "volume",
-        "steady='shooting' with a preload reports volume_drift 0.002..0.23: Newton moves the "
-        "pump volume and the Windkessel pressure to the orbit, but the supplied/drained volume "
-        "accumulators keep their guessed values, so the total is not that of the start "
-        "(solve.shoot_periodic: the closed-circuit elimination of V does not apply, and nothing "
-        "re-bases the accumulators)",
-    ),
-    KnownFailure(
         ("grid/bench-dynamic/reference/300bpm/Omega=4,C=0.4,150mmHg",),
         "energy",
         "at 'reference' the energy account closes to 1.25e-6 on this member, just above 1e-6: "
