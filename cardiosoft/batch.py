@@ -315,8 +315,8 @@ def _metrics(circuit: PumpCircuit, ts, ys):
     if circuit.energy:
         first, last = (jax.tree_util.tree_map(lambda a, i=i: a[i], ys) for i in (0, -1))
         terms = {k: v[-1] - v[0] for k, v in ys["energy"].items()}
-        stored = circuit.stored_energy(ts[-1], last) - circuit.stored_energy(ts[0], first)
-        energy = (terms, stored)
+        start = circuit.stored_energy(ts[0], first)
+        energy = (terms, circuit.stored_energy(ts[-1], last) - start, start)
     metrics = beat_metrics(
         ts, ys["volume"], signals, PULL_SAMPLES, circuit.actuation.period, reference, energy
     )
