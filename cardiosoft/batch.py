@@ -315,8 +315,8 @@ def _metrics(circuit: PumpCircuit, ts, ys):
     if circuit.energy:
         first, last = (jax.tree_util.tree_map(lambda a, i=i: a[i], ys) for i in (0, -1))
         terms = {k: v[-1] - v[0] for k, v in ys["energy"].items()}
-        stored = circuit.stored_energy(ts[-1], last) - circuit.stored_energy(ts[0], first)
-        energy = (terms, stored)
+        start = circuit.stored_energy(ts[0], first)
+        energy = (terms, circuit.stored_energy(ts[-1], last) - start, start)
     metrics = beat_metrics(
         ts, ys["volume"], signals, PULL_SAMPLES, circuit.actuation.period, reference, energy
     )
@@ -444,7 +444,9 @@ class StaticSolution(eqx.Module):
     """What :func:`solve_static` returns: quasi-static pulls against the column (SI, per member).
 
     The force and work are the load cell's (cable friction included when the scene has it);
-    ``efficiency`` is the paper's ``P_a SV / M``.
+    ``efficiency`` is the paper's ``P_a SV / M``; ``max_pressure`` the stroke's largest chamber
+    pressure (Pa), the head plus the column's rise, which :func:`cardiosoft.results.flags`
+    holds against the surrogate's fitted pressures.
     """
 
     members: dict
@@ -452,6 +454,7 @@ class StaticSolution(eqx.Module):
     peak_force: jax.Array
     mech_work: jax.Array
     efficiency: jax.Array
+    max_pressure: jax.Array
 
 
 def solve_static(

@@ -64,11 +64,18 @@ class BeatMetrics(eqx.Module):
     """Lost to cable friction, the shell's viscosity and the valves (J)."""
     stored_change: jax.Array | None = None
     """Change of the shell's strain energy over the beat (J); 0 at the periodic steady state."""
+    stored_energy: jax.Array | None = None
+    """The shell's strain energy at the beat's start (J): the scale of the round-off of
+    ``stored_change`` (:func:`cardiosoft.results.flags`)."""
     energy_residual: jax.Array | None = None
-    """|work_in - work_delivered - work_lost - stored_change| / work_in: how well the account
-    closes (the solver's error; ~tolerance)."""
+    """|work_in - work_delivered - work_lost - stored_change| over the energy the beat carries,
+    (|work_in| + |work_delivered| + |work_lost| + |stored_change|) / 2: how well the account
+    closes (the solver's error; ~tolerance). The scale is the work in at a periodic beat that
+    delivers and loses energy; it also counts energy that the afterload gives back (delivered
+    < 0) and that the shell stores (a beat that is not periodic), and the residual is at most 2."""
     energy_efficiency: jax.Array | None = None
-    """work_delivered / work_in: in [0, 1] whenever the losses are, at any rate and afterload."""
+    """work_delivered / work_in: in [0, 1] at a periodic beat whenever the losses are >= 0, at
+    any rate and afterload (:func:`cardiosoft.results.flags` says where it is not meaningful)."""
 
 
 def beat_metrics(
@@ -78,8 +85,10 @@ def beat_metrics(
 
     ``ts`` (s), ``volume`` (m^3) and the ``signals`` of :meth:`PumpCircuit.signals` are sampled
     over one period; the first ``n_pull`` samples (static) span exactly the pull phase.
-    ``energy``: the beat's energy account, ``(terms, stored_change)`` with ``terms`` the
-    accumulated :meth:`PumpCircuit.power` terms over the beat (J), or None.
+    ``energy``: the beat's energy account, ``(terms, stored_change, stored_energy)`` with
+    ``terms`` the accumulated :meth:`PumpCircuit.power` terms over the beat, ``stored_change``
+    the change of the shell's strain energy over it and ``stored_energy`` that energy at its
+    start (J), or None.
     """
     edv, esv = jnp.max(volume), jnp.min(volume)
     sv = edv - esv
@@ -111,16 +120,20 @@ def beat_metrics(
     )
 
 
-def _energy_account(terms: dict, stored_change) -> dict:
+def _energy_account(terms: dict, stored_change, stored_energy) -> dict:
     zero = jnp.zeros_like(terms["cable_in"])
     work_in = terms["cable_in"] + terms.get("atrium_in", zero)
     lost = sum((terms.get(k, zero) for k in ("friction", "viscous", "valves")), zero)
     delivered = terms["delivered"]
+    closure = work_in - delivered - lost - stored_change
+    # the energy the beat carries: each side of the balance, in = delivered + lost + stored
+    carried = 0.5 * (jnp.abs(work_in) + jnp.abs(delivered) + jnp.abs(lost) + jnp.abs(stored_change))
     return {
         "work_in": work_in,
         "work_delivered": delivered,
         "work_lost": lost,
         "stored_change": stored_change,
-        "energy_residual": jnp.abs(work_in - delivered - lost - stored_change) / work_in,
+        "stored_energy": stored_energy,
+        "energy_residual": jnp.abs(closure) / carried,
         "energy_efficiency": delivered / work_in,
     }

@@ -17,7 +17,28 @@ from cardiosoft.pump import Domain
 from cardiosoft.scene import Scene
 from cardiosoft.units import ml, mmHg
 
-__all__ = ["MemberResult", "RunResult", "flags", "member_results", "summary_records"]
+__all__ = [
+    "ENERGY_ROUNDOFF",
+    "STORED_CHANGE_TOL",
+    "MemberResult",
+    "RunResult",
+    "flags",
+    "member_results",
+    "summary_records",
+]
+
+ENERGY_ROUNDOFF = 64 * float(np.finfo(np.float64).eps)
+"""Round-off of the energy account relative to the shell's strain energy U (1.4e-14): the
+account subtracts U at the beat's ends, each evaluated to some ulp of U (measured: a stroke
+of C 1.9e-97 carries 6.5e-16 J of noise, 6 ulp of U = 0.56 J). A beat that carries less than
+this many ulp of U (1e-14 J for U ~ 1 J; a stroke of C below ~1e-14) has an energy residual
+and efficiency that are round-off over round-off (1e80 was seen): both are reported as none."""
+STORED_CHANGE_TOL = 1e-3
+"""Largest |stored_change| / work_in at which ``energy_efficiency`` is reported. delivered =
+in - lost - stored, so a beat that is not periodic in the shell's energy moves the efficiency by
+stored / in: 1e-3 keeps it to its third decimal. Measured (bench-dynamic, Omega 4, 150 mmHg, 60
+bpm, 'default'): 3e-6 at C 0.4, 1.5e-4 at C 0.1, both steady; a 0.04-ml stroke (Omega 0, C 0.01)
+that passes the steady tolerance of 0.01 ml still stores 8 % of the work in each beat."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,6 +90,7 @@ def _static_metrics(static: StaticSolution, i: int) -> dict[str, float]:
         "static_peak_force": float(static.peak_force[i]),
         "static_mech_work": float(static.mech_work[i]),
         "static_efficiency": float(static.efficiency[i]),
+        "static_max_pressure": float(static.max_pressure[i]),
     }
 
 
@@ -84,6 +106,11 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
 
     - the chamber pressure outside ``domain.pressure_mmHg`` (the pressures the surrogate was
       fitted on): its volumes, forces and every metric derived from them are extrapolated;
+    - the quasi-static stroke's largest pressure (``static_max_pressure``: the head plus the
+      column's rise) above the fitted range: its static SV, force and efficiency are
+      extrapolated (a stroke starts at the head, >= 0 mmHg: it cannot fall below the range);
+    - the energy account's ratios where they are not meaningful (:func:`_energy_flags`): set
+      to NaN;
     - a negative cable force: the prescribed pull would need the cables to push. A real cable
       goes slack instead and the shell then moves by itself, which this displacement-controlled
       model does not simulate; the result is reported, flagged, not corrected.
@@ -96,11 +123,18 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
             out.append(f"pump pressure down to {p_lo:.1f} mmHg, below the fitted {lo:g} mmHg")
         if p_hi > hi:
             out.append(f"pump pressure up to {p_hi:.1f} mmHg, above the fitted {hi:g} mmHg")
+    if metrics.get("static_max_pressure", -math.inf) / mmHg > hi:
+        p_hi = metrics["static_max_pressure"] / mmHg
+        out.append(
+            f"static pressure up to {p_hi:.2f} mmHg (head + column rise), {p_hi - hi:.2g} mmHg "
+            f"above the fitted {hi:g} mmHg"
+        )
     if metrics.get("min_cable_force", 0.0) < 0.0:
         out.append(
             f"cable force down to {metrics['min_cable_force']:.1f} N: the pull needs a cable that "
             "pushes (a real cable goes slack; not modelled)"
         )
+    _energy_flags(metrics, out)
     for key in ("efficiency", "static_efficiency"):
         e = metrics.get(key)
         work = metrics.get("mech_work" if key == "efficiency" else "static_mech_work", 0.0)
@@ -114,6 +148,41 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
                 "a steady head); reported as none"
             )
     return tuple(out)
+
+
+def _energy_flags(metrics: dict[str, float], out: list[str]) -> None:
+    """The energy account's ratios (``energy=True``) where they are not meaningful: set to NaN
+    in ``metrics``, the reason appended to ``out``. The ratios are a small difference over a
+    small energy in two cases:
+
+    - a vanishing stroke: the beat carries no more than :data:`ENERGY_ROUNDOFF` of the shell's
+      strain energy (residual and efficiency);
+    - a beat whose stored energy changes by more than :data:`STORED_CHANGE_TOL` of the work in
+      (a transient; a small stroke that meets the steady tolerance, absolute in ml, before its
+      shell's energy is periodic): the efficiency only. The residual still holds: the account
+      includes the stored change.
+    """
+    if "work_in" not in metrics:
+        return
+    work_in, stored = metrics["work_in"], metrics["stored_change"]
+    terms = (work_in, metrics["work_delivered"], metrics["work_lost"], stored)
+    carried = 0.5 * sum(abs(t) for t in terms)
+    floor = ENERGY_ROUNDOFF * abs(metrics["stored_energy"])
+    if not carried > floor:
+        metrics["energy_residual"] = metrics["energy_efficiency"] = math.nan
+        out.append(
+            f"energy account: the beat carries {carried:.3g} J, within the round-off of the "
+            f"shell's stored energy ({floor:.3g} J); energy residual and efficiency reported as "
+            "none"
+        )
+    elif not (work_in > 0.0 and abs(stored) <= STORED_CHANGE_TOL * work_in):
+        e = metrics["energy_efficiency"]
+        metrics["energy_efficiency"] = math.nan
+        out.append(
+            f"energy efficiency delivered / in = {e:.3g} is not meaningful here: the shell's "
+            f"stored energy changes by {stored:.3g} J over the beat against {work_in:.3g} J put "
+            f"in (more than {STORED_CHANGE_TOL:g} of it: not a periodic beat); reported as none"
+        )
 
 
 def member_results(

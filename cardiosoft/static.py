@@ -120,8 +120,10 @@ def static_strokes(
     factor ``exp(mu theta)`` on the force and so on the work. ``n_points`` (static): the pull
     grid of each stroke (:func:`quasi_static_stroke`).
 
-    **Returns:** ``(stroke_volume m^3, peak_force N, mech_work J, efficiency)``, each per member,
-    the efficiency the paper's ``P_a SV / M``.
+    **Returns:** ``(stroke_volume m^3, peak_force N, mech_work J, efficiency, max_pressure Pa)``,
+    each per member: the efficiency the paper's ``P_a SV / M``, the largest pressure of the
+    stroke's grid the head plus the column's rise (what the chamber law is evaluated at, for
+    the check against the surrogate's fitted range).
     """
 
     def one(o, c, p):
@@ -130,4 +132,5 @@ def static_strokes(
     out = jax.vmap(one)(omega, shortening, afterload)
     factor = jnp.exp(friction)
     force, work = factor * out.peak_force, factor * out.mechanical_work
-    return out.stroke_volume, force, work, afterload * out.stroke_volume / work
+    efficiency = afterload * out.stroke_volume / work
+    return out.stroke_volume, force, work, efficiency, jnp.max(out.pressure, axis=-1)

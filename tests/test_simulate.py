@@ -226,8 +226,12 @@ def test_lv_windkessel_mass_balance_in_the_periodic_steady_state(twenty_beats):
     sv = tr["volume"].max() - tr["volume"].min()
     assert m.metrics["stroke_volume"] == pytest.approx(sv, rel=1e-12)
     assert m.metrics["cardiac_output"] == pytest.approx(sv * scene.bpm / 60.0, rel=1e-12)
-    # everything ejected drains through Rd (smooth valves leak ~1e-4 of SV)
-    assert m.metrics["cardiac_output"] == pytest.approx(mean_drain, rel=2e-3)
+    # everything ejected drains through Rd, less what flows back through the valves as they
+    # close: the smooth law's backflow, q = dp sigmoid(dp / w) / R < 0 for dp < 0, is at most
+    # 0.28 w / R within a few w of closing. Measured: SV 42.79 ml, 42.20 ml drained, 0.97 ml
+    # back through the inlet valve and 0.06 ml through the outlet valve over the beat.
+    backflow = trapezoid(np.minimum(tr["inflow"], 0) + np.minimum(tr["outflow"], 0), t)
+    assert 0.0 <= (m.metrics["cardiac_output"] - mean_drain) * period <= -backflow
 
 
 def test_lv_windkessel_decays_exponentially_while_the_aortic_valve_is_shut(twenty_beats):
@@ -237,7 +241,7 @@ def test_lv_windkessel_decays_exponentially_while_the_aortic_valve_is_shut(twent
     _, c, rd = scene.windkessel
     tr = m.traces
     t, pc, q = tr["time"], tr["node_pressure"], tr["outflow"]
-    shut = np.flatnonzero(q < 1e-12 * ML)
+    shut = np.flatnonzero(np.abs(q) < 1e-12 * ML)  # neither forward nor back (closing) flow
     assert shut.size > 50
     # the longest contiguous run of samples with the valve shut (diastole)
     runs = np.split(shut, np.flatnonzero(np.diff(shut) > 1) + 1)

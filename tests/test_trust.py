@@ -7,11 +7,13 @@ import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from cardiosoft.experiment import run, run_designs
 from cardiosoft.pump import Domain
-from cardiosoft.results import summary_records
+from cardiosoft.results import RunResult, summary_records
+from cardiosoft.scene import load_scene
 from cardiosoft.units import mmHg
 
 
@@ -50,6 +52,25 @@ def test_a_tiny_stroke_against_a_high_head_reports_no_efficiency_above_one():
     result = run("bench-static", shortening=0.001, afterload=[150])
     (record,) = summary_records(result)
     assert record["efficiency"] is None or 0 <= record["efficiency"] <= 1
+
+
+def test_a_quasi_static_stroke_above_the_fitted_range_is_flagged():
+    """From a 150-mmHg head the column's rise takes the quasi-static stroke above the fitted
+    150 mmHg (to 152.54 at Omega 4, C 0.4: the hard-case suite's number); at 60 mmHg it
+    stays inside. The flag gives the pressure, head + rho g SV / A_col, and how far."""
+    from cardiosoft.scene import load_scene
+    from cardiosoft.static import column_stiffness
+    from cardiosoft.units import RHO_WATER, G
+
+    result = run("bench-static", afterload=[60, 150])
+    scene = load_scene("bench-static")
+    k = float(column_stiffness(0.25 * math.pi * scene.column_diameter**2, RHO_WATER, G))
+    low, high = result.members
+    assert not any("static pressure" in f for f in low.flags)
+    p = (high.afterload + k * high.metrics["static_stroke_volume"]) / mmHg
+    assert p > Domain().pressure_mmHg[1]
+    (flag,) = [f for f in high.flags if f.startswith("static pressure")]
+    assert f"up to {p:.2f} mmHg" in flag and "above the fitted 150 mmHg" in flag
 
 
 def test_zero_shortening_gives_zero_stroke_and_valid_json():
@@ -115,6 +136,57 @@ def test_the_energy_account_closes_every_beat(name):
     assert float(m.energy_residual.max()) < 1e-6
     assert float(m.energy_efficiency.min()) >= 0.0 and float(m.energy_efficiency.max()) <= 1.0
     assert float(m.work_lost.min()) >= 0.0
+
+
+def test_the_valves_only_dissipate():
+    """lv-systemic at its steady state: the valves' loss over a beat (P_up - P_down) q >= 0
+    and delivered <= work in. With the earlier smooth law w softplus(dp / w) / R (69 ml/s at
+    dp = 0) a small stroke (Omega 4, C 0.01) had a valve loss of -1.66e-3 J and an energy
+    efficiency of 1.119 (measured); now 3.4e-4 J and 0.971."""
+    from cardiosoft.batch import solve_beats
+
+    out = solve_beats(
+        "lv-systemic", omega=4.0, shortening=[0.01, 0.4], energy=True, save="traces"
+    )
+    m, valves = out.metrics, out.traces["valves"]
+    assert bool(out.steady.all())
+    assert (valves[:, -1] - valves[:, 0] >= 0.0).all()
+    assert (m.work_lost >= 0.0).all()
+    assert (m.energy_efficiency >= 0.0).all() and (m.energy_efficiency <= 1.0).all()
+
+
+def test_energy_ratios_are_none_where_they_are_not_meaningful():
+    """bench-dynamic ('default'). C 1.9e-97 (Omega 3.88, 111.6 mmHg, 298.9 bpm: a hypothesis
+    draw of the hard-case suite): the beat carries 6.8e-16 J, round-off of the shell's 0.34 J,
+    and the residual was 1.5e80, the efficiency -3.2e80. Omega 0, C 0.01, 150 mmHg, 60 bpm, a
+    0.04-ml stroke: steady to the scene's 0.01 ml while the shell still stores 8 % of the work
+    in each beat, an efficiency of -0.076 (measured). Both efficiencies are reported as none,
+    flagged, and the first residual too; Omega 0, C 0.4 is reported, in [0, 1]."""
+    from cardiosoft.batch import solve_beats
+    from cardiosoft.results import STORED_CHANGE_TOL, member_results
+
+    out = solve_beats(
+        "bench-dynamic",
+        omega=[3.8763409659652757, 0.0, 0.0],
+        shortening=[1.914530883185141e-97, 0.01, 0.4],
+        afterload=np.asarray([111.61406296567601, 150.0, 150.0]) * mmHg,
+        bpm=[298.8540726443747, 60.0, 60.0],
+        energy=True,
+        save="metrics",
+    )
+    vanishing, small, full = member_results(["a", "b", "c"], out, None)
+    assert math.isnan(vanishing.metrics["energy_residual"])
+    assert math.isnan(vanishing.metrics["energy_efficiency"])
+    assert any(f.startswith("energy account") for f in vanishing.flags)
+    m = small.metrics
+    assert small.ok and abs(m["stored_change"]) > STORED_CHANGE_TOL * m["work_in"]
+    assert math.isnan(m["energy_efficiency"]) and math.isfinite(m["energy_residual"])
+    assert any(f.startswith("energy efficiency") for f in small.flags)
+    assert 0.0 <= full.metrics["energy_efficiency"] <= 1.0
+    assert not any(f.startswith("energy") for f in full.flags)
+    records = summary_records(RunResult(load_scene("bench-dynamic"), (vanishing, small, full)))
+    json.loads(json.dumps(records, allow_nan=False))
+    assert [r["energy_efficiency"] is None for r in records] == [True, True, False]
 
 
 def test_a_compliance_below_the_validated_minimum_is_refused():
