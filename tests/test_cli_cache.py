@@ -42,12 +42,12 @@ def test_default_folder_follows_xdg_cache_home_and_a_second_process_reuses_it(tm
         JAX_COMPILATION_CACHE_DIR=None,
         JAX_LOG_COMPILES="1",
     )
-    cold, first = simulate(tmp_path, "cold", "--bpm", "60", **env)
+    cold, first = simulate(tmp_path, "cold", "--bpm", "30", **env)
     folder = xdg / "cardiosoft" / "jax"
     stored = {p.name.split("-")[0] for p in folder.iterdir()}
     assert {"jit__solve", "jit_static_strokes"} <= stored, stored
     assert "Persistent compilation cache hit for 'jit__solve'" not in cold.stderr
-    warm, second = simulate(tmp_path, "warm", "--bpm", "60", **env)
+    warm, second = simulate(tmp_path, "warm", "--bpm", "30", **env)
     for name in ("jit__solve", "jit_static_strokes"):
         assert f"Persistent compilation cache hit for '{name}'" in warm.stderr
     assert second == first  # the same numbers from the loaded program
