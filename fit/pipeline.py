@@ -277,7 +277,8 @@ CONVEXITY_FIT_GRID = (13, 66, 24)  # Omega x C x V points of the constraint insi
 def stiffness_grid(model: PumpSurrogate, omegas, shortenings, n_volumes: int):
     """d2U/dV2 / E_u on a grid covering the fitted domain: (Omega, C, V), V from the volume at
     the lowest pressure of the unswollen chamber to 10 ml above the highest pressure's volume
-    of a chamber with its folds fully undone (m^3; a superset of the domain's volumes)."""
+    of a chamber with its folds fully undone (m^3; the 10 ml cover the swollen chamber's
+    softer pressure law, so that the grid spans the domain's volumes)."""
     p_lo, p_hi = (p * mmHg for p in model.domain.pressure_mmHg)
     unfolded = jnp.exp(model.log_chamber_elastance)
 
@@ -318,6 +319,8 @@ def all_residuals(model, rig, t: Targets):
             convexity_residuals(model),
             (bench.static_sv - t.static_sv) / (0.5 * t.static_sv_sd),
             (bench.peak_force - t.peak_force) / (0.02 * t.peak_force) * t.peak_force_weight,
+            # 2 % of the work, as the force (format 2 used 4 %): issue #17 asks for the work
+            # within 2 %, and the format-3 fit reaches both (1.8 % and 4.5 %)
             (bench.mech_work - t.mech_work) / (0.02 * t.mech_work),
             jnp.stack(
                 [
@@ -422,7 +425,8 @@ def mechanics_start(model: PumpSurrogate) -> PumpSurrogate:
 
     Shell stiffness so that the zero-pressure force peaks near 50 N; an unfolded chamber of
     about 0.2 ml/mmHg; stiffening over ~10 ml. The fold compliance is set to its ``HELD``
-    value (folding softens the chamber 1.9 times at the bench's EF_0 of 0.76).
+    value (folding softens the chamber 1.9 times at the bench's EF_0 of 0.76); the swelling's
+    resistance starts at k = softplus(0) = 0.69.
     """
     return eqx.tree_at(
         lambda m: (
