@@ -213,6 +213,9 @@ def test_shooting_conserves_the_volume_with_a_preload():
     assert float(jnp.max(out.volume_drift)) <= 1e-9
 
 
+# slow (27 s, the reference preset compiles anew): CI keeps the time budget;
+# test_jacfwd_wrt_the_design_matches_central_differences checks the derivatives in CI.
+@pytest.mark.slow
 def test_shooting_derivative_is_that_of_the_orbit(scene):
     """d SV / d C at the periodic orbit (implicit function theorem through the Newton root)
     against central differences of independently converged orbits, both at the 'reference'

@@ -210,6 +210,9 @@ def test_running_out_of_steps_says_how_to_raise_the_limit():
         run("bench-dynamic", max_steps=5)
 
 
+# slow (40 s): CI keeps the time budget; the quick hard-case suite (tests/test_stress.py)
+# still compares the CLI with the API in CI.
+@pytest.mark.slow
 def test_the_cli_and_the_api_agree_on_a_valve_scene(tmp_path):
     """lv-systemic at 60 bpm: the CLI compiles at XLA optimisation level 0 (and resolves
     equinox's checks to NaN for its compile cache), the API at the default; they used to
