@@ -635,6 +635,7 @@ class _Evaluator:
     """The search's one compiled function for a problem's shape, and its timings."""
 
     _compiled: ClassVar[dict] = {}  # shared by every search of the process: no recompile
+    _lowered: ClassVar[dict] = {}  # traced, not yet compiled
 
     def __init__(self, problem: _Problem, pump, accuracy: str | None, steady: str):
         scene = problem.scene
@@ -654,11 +655,9 @@ class _Evaluator:
         self.calls = 0
         self.call_s: list[float] = []
 
-    def __call__(self, z: np.ndarray):
-        """(values (R, K, 5), jac (R, K, 5, d), ok (R, K), beats (R, K)) as numpy."""
+    def _args(self, z):
         z = jnp.asarray(z, jnp.result_type(float))
         args = (z, self.base, self.heads, self.rates, self.numbers, self.pump, self.config)
-        static = dict(structure=self.structure, space=self.space, steady=self.steady)
         leaves, treedef = jax.tree_util.tree_flatten(args)
         key = (
             self.structure,
@@ -667,13 +666,27 @@ class _Evaluator:
             treedef,
             tuple((np.shape(a), jnp.result_type(a)) for a in leaves),
         )
+        return args, key
+
+    def trace(self, z: np.ndarray) -> None:
+        """Trace and lower for the shape of ``z`` now, compile at the first call. Tracing holds
+        Python's lock, XLA's compile does not: a second thread's tracing overlaps the latter."""
+        args, key = self._args(z)
+        if key not in self._compiled and key not in self._lowered:
+            start = time.perf_counter()
+            static = dict(structure=self.structure, space=self.space, steady=self.steady)
+            self._lowered[key] = _EVALUATE.lower(*args, **static)
+            self.trace_s += time.perf_counter() - start
+            self.compile_s += time.perf_counter() - start
+
+    def __call__(self, z: np.ndarray):
+        """(values (R, K, 5), jac (R, K, 5, d), ok (R, K), beats (R, K)) as numpy."""
+        self.trace(z)
+        args, key = self._args(z)
         start = time.perf_counter()
         compiled = self._compiled.get(key)
         if compiled is None:
-            lowered = _EVALUATE.lower(*args, **static)
-            self.trace_s += time.perf_counter() - start
-            compiled = lowered.compile()
-            self._compiled[key] = compiled
+            compiled = self._compiled[key] = self._lowered.pop(key).compile()
             self.compile_s += time.perf_counter() - start
             start = time.perf_counter()
         values, jac, (ok, beats) = compiled(*args)
@@ -1183,12 +1196,16 @@ def optimise(
             warm["error"] = err
         warm["seconds"] = time.perf_counter() - begin
 
+    # The search's tracing first, alone: two threads tracing at once share Python's lock and
+    # took longer than one after the other (measured, #13); the prewarm's tracing then runs
+    # while XLA compiles the search.
+    t0 = time.perf_counter()
+    z_grid = _grid(problem)
+    evaluate.trace(z_grid[:REFINE])
     warmer = threading.Thread(target=prewarm, daemon=True)
     warmer.start()
 
     # 1. the coarse grid, in batches of REFINE
-    t0 = time.perf_counter()
-    z_grid = _grid(problem)
     d = z_grid.shape[1]
     grid_evals = [evaluate(z_grid[k : k + REFINE]) for k in range(0, GRID, REFINE)]
     values = np.concatenate([e[0] for e in grid_evals])

@@ -301,6 +301,35 @@ def _in_phase(s, y, args):
     return jax.tree_util.tree_map(lambda d: period * d, field(s * period, y, None))
 
 
+def _one_beat(field, period, y, save_ts, jump_ts, config):
+    # Integrated in the beat's phase s = t / period over [0, 1]: with constant ends, diffrax's
+    # end-of-interval bookkeeping (t1 minus 100 ULP, ~1500 HLO ops per member) folds away at
+    # compile time, while the period stays an array leaf (a new bpm does not recompile).
+    return integrate(
+        _in_phase, y, 0.0, 1.0, args=(field, period), ts=save_ts, jump_ts=jump_ts / period,
+        config=config,
+    )
+
+
+def _sampled_beat(field, period, y_start, ts, jump_ts, config, observe, result):
+    """The beat from ``y_start`` once more, sampled at ``ts``: (observed, result, steps)."""
+    # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
+    last = _one_beat(field, period, y_start, jnp.clip(ts / period, 0.0, 1.0), jump_ts, config)
+    return observe(ts, last.ys), _finite_or_failed(last.ys, result), last.stats["num_steps"]
+
+
+def _finite_or_failed(states, result):
+    # A state that is not finite after a successful solve is a broken invariant, never a
+    # result: diffrax checks the save times with a host callback that raises, which the CLIs
+    # resolve to NaN instead so that their compile can be cached (cardiosoft._cli); diffrax then
+    # leaves every sample at inf and still reports success.
+    leaves = jax.tree_util.tree_leaves(states)
+    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in leaves]))
+    return diffrax.RESULTS.where(
+        diffrax.is_successful(result) & ~finite, diffrax.RESULTS.internal_error, result
+    )
+
+
 def periodic_beats(
     field,
     y0,
@@ -326,7 +355,8 @@ def periodic_beats(
 
     - ``field``: the vector field, periodic in t with ``period`` (s); each beat runs over
       ``[0, period]`` from the previous beat's end state.
-    - ``ts``: save times of a beat, increasing from 0, the last one equal to ``period``.
+    - ``ts``: save times of a beat, increasing from 0, the last one equal to ``period``; None
+      integrates no sampled last beat (``observed`` is None, ``num_steps`` 0).
     - ``y0``: the state at the start of the first beat; ``jump_ts``: kinks of the forcing in
       ``[0, period]``; ``total_volume``: ``y -> m^3`` for the conservation check.
     - ``max_beats`` (static): the most beats; with ``tol = 0`` exactly that many are run.
@@ -345,27 +375,12 @@ def periodic_beats(
     ftype = jnp.result_type(float)
     v_ref = total_volume(y0)
 
-    def one_beat(y, save_ts):
-        # Integrated in the beat's phase s = t / period over [0, 1]: with constant ends, diffrax's
-        # end-of-interval bookkeeping (t1 minus 100 ULP, ~1500 HLO ops per member) folds away at
-        # compile time, while the period stays an array leaf (a new bpm does not recompile).
-        return integrate(
-            _in_phase,
-            y,
-            0.0,
-            1.0,
-            args=(field, period),
-            ts=save_ts,
-            jump_ts=jump_ts / period,
-            config=config,
-        )
-
     # Beat after beat saving only each beat's end (interpolating the samples of every beat was
     # measured as half to three quarters of the cost: benchmarks/sweep_throughput.py); the
     # last beat is then integrated once more from its start, the same steps, with its samples.
     def body(carry):
         y, beats, residual, _, drift, _, _ = carry
-        sol = one_beat(y, None)
+        sol = _one_beat(field, period, y, None, jump_ts, config)
         y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
         drift = jnp.maximum(drift, jnp.abs(total_volume(y_end) - v_ref) / jnp.abs(v_ref))
         return y_end, beats + 1, _cycle_residual(y, y_end), residual, drift, sol.result, y
@@ -378,19 +393,12 @@ def periodic_beats(
     inf = jnp.array(jnp.inf, ftype)
     carry = (y0, jnp.array(0), inf, inf, jnp.zeros((), ftype), diffrax.RESULTS.successful, y0)
     y_end, beats, residual, _, drift, result, y_start = jax.lax.while_loop(cond, body, carry)
-    # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
-    last = one_beat(y_start, jnp.clip(ts / period, 0.0, 1.0))
-    # A sample that is not finite after a successful solve is a broken invariant, never a
-    # result: diffrax checks the save times with a host callback that raises, which the CLIs
-    # resolve to NaN instead so that their compile can be cached (cardiosoft._cli); diffrax then
-    # leaves every sample at inf and still reports success.
-    leaves = jax.tree_util.tree_leaves(last.ys)
-    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in leaves]))
-    result = diffrax.RESULTS.where(
-        diffrax.is_successful(result) & ~finite, diffrax.RESULTS.internal_error, result
-    )
-    observed = observe(ts, last.ys)
-    steps = last.stats["num_steps"]
+    if ts is None:
+        observed, steps, result = None, jnp.array(0), _finite_or_failed(y_end, result)
+    else:
+        observed, result, steps = _sampled_beat(
+            field, period, y_start, ts, jump_ts, config, observe, result
+        )
     return Beats(ts, observed, y_start, y_end, beats, residual, drift, result, steps, jnp.array(0))
 
 
@@ -416,20 +424,24 @@ def shoot_periodic(
     2. Newton's method (``optimistix.root_find``) on ``u -> Phi(u) - u``, ``Phi`` the state one
        beat later, in the periodic states of :data:`PERIODIC_SCALES` divided by their scales
        (ml, ml/s, mmHg). Its Jacobian comes from forward-mode derivatives of the beat (a 2-5
-       dimensional state), and the root is differentiated implicitly (``ImplicitAdjoint``):
-       ``jax.jvp``/``jacfwd`` of anything downstream see ``dy*/dtheta = -(dPhi/dy - I)^-1
-       dPhi/dtheta``, not the derivative of the beats that led there. ``closed``: the circuit
-       conserves its total fluid volume (no preload), so the orbits form a family, one per total;
-       the pump volume is then eliminated, ``V = total_volume(y0) - (total_volume(y) - V)``.
-       Accumulators (:data:`ACCUMULATORS`) are bookkeeping, read by nothing but the volume
-       check: with a preload (an open circuit, whose total the orbit does not fix) the first
-       is re-based so that the total volume is that of ``y0``. Left at its guessed value,
-       Newton's move of the pump volume and the Windkessel pressure showed as a volume drift
-       of up to 0.78 (relative; lv-systemic and rv-pulmonary at 240-300 bpm), now ~1e-15.
+       dimensional state), and the root is differentiated implicitly: ``jax.jvp``/``jacfwd`` of
+       anything downstream see ``dy*/dtheta = -(dPhi/dy - I)^-1 dPhi/dtheta``, not the
+       derivative of the beats that led there. Only that one beat and the sampled last beat
+       carry derivatives; the beats before and after Newton, and Newton itself, run on frozen
+       inputs (carrying tangents through them took about 40 % more tracing, #13). ``closed``:
+       the circuit conserves its total fluid volume (no preload), so the orbits form a family,
+       one per total; the pump volume is then eliminated, ``V = total_volume(y0) -
+       (total_volume(y) - V)``. Accumulators (:data:`ACCUMULATORS`) are bookkeeping, read by
+       nothing but the volume check: with a preload (an open circuit, whose total the orbit does
+       not fix) the first is re-based so that the total volume is that of ``y0``. Left at its
+       guessed value, Newton's move of the pump volume and the Windkessel pressure showed as a
+       volume drift of up to 0.78 (relative; lv-systemic and rv-pulmonary at 240-300 bpm), now
+       ~1e-15.
     3. From the orbit (or, if Newton failed, from the guess), beat after beat as in
        :func:`periodic_beats` until the cycle-to-cycle change is below ``tol``, at most
-       ``max_beats``: at a converged orbit that is one beat, whose samples ``observe`` sees;
-       otherwise beat after beat is the fallback, and ``residual`` says how it ended.
+       ``max_beats``: at a converged orbit that is two beats (the steady test), then the last
+       once more with its samples for ``observe``; otherwise beat after beat is the fallback,
+       and ``residual`` says how it ended.
 
     ``beats`` counts the beats of steps 1 and 3; ``newton_steps`` the iterations of step 2 (each
     costs about one beat per state component more). The arguments are those of
@@ -437,9 +449,10 @@ def shoot_periodic(
     """
     config = preset("default") if config is None else config
     v_ref = total_volume(y0)
+    field_f, y0_f, period_f, jump_ts_f = _frozen((field, y0, period, jump_ts))
     guess = periodic_beats(
-        field, y0, period, ts, jump_ts=jump_ts, total_volume=total_volume,
-        max_beats=guess_beats, tol=tol, config=config, observe=lambda ts, ys: (),
+        field_f, y0_f, period_f, None, jump_ts=jump_ts_f,
+        total_volume=total_volume, max_beats=guess_beats, tol=tol, config=config,
     )
     flat, treedef = jax.tree_util.tree_flatten_with_path(guess.y_end)
     names = [path[-1].key for path, _ in flat]
@@ -456,7 +469,7 @@ def shoot_periodic(
         leaves = jax.tree_util.tree_leaves(y)
         return jnp.stack([leaves[i] for i in unknown]) / scales
 
-    def to_state(u):
+    def to_state(u, v_ref):
         leaves = list(template)
         for k, i in enumerate(unknown):
             leaves[i] = u[k] * scales[k]
@@ -479,8 +492,9 @@ def shoot_periodic(
         return y
 
     def beat_map(u, args):
+        field, period, jump_ts, v_ref = args
         sol = integrate(
-            _in_phase, to_state(u), 0.0, 1.0, args=(field, period),
+            _in_phase, to_state(u, v_ref), 0.0, 1.0, args=(field, period),
             jump_ts=jump_ts / period, config=config,
         )
         y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
@@ -489,22 +503,46 @@ def shoot_periodic(
     # Newton's own tolerance, in the scaled units: well inside the steady tolerance
     newton = optx.Newton(rtol=1e-8, atol=0.1 * tol + 1e-9)
     u0 = to_unknowns(guess.y_end)
-    root = optx.root_find(beat_map, newton, u0, max_steps=max_newton, throw=False)
+    live = (field, period, jump_ts, v_ref)
+    frozen = _frozen(live)
+    root = optx.root_find(beat_map, newton, u0, args=frozen, max_steps=max_newton, throw=False)
     converged = optx.RESULTS.successful == root.result
     finite = jnp.all(jnp.isfinite(root.value))
-    start = jnp.where(converged & finite, root.value, u0)
+    u_root = jnp.where(converged & finite, root.value, u0)
+    # The implicit function theorem as one Newton step whose value is zero: start equals
+    # u_root, and its derivative is -(dG/du)^-1 dG/dtheta (G = beat_map, dG/du frozen). From
+    # the guess, if Newton failed, it is that formula at the guess: approximate, and the
+    # fallback's beats say whether that point is steady. A singular dG/du (no isolated orbit)
+    # makes start NaN, and the member fails rather than carry a wrong derivative.
+    jac = jax.jacfwd(beat_map)(u_root, frozen)
+    g = beat_map(u_root, live)
+    start = u_root - jnp.linalg.solve(jac, g - jax.lax.stop_gradient(g))
+    orbit = to_state(start, v_ref)
     final = periodic_beats(
-        field, to_state(start), period, ts, jump_ts=jump_ts, total_volume=total_volume,
-        max_beats=max_beats, tol=tol, config=config, observe=observe,
+        field_f, _frozen(orbit), period_f, None, jump_ts=jump_ts_f, total_volume=total_volume,
+        max_beats=max_beats, tol=tol, config=config,
+    )
+    # the last beat's start, as the beats found it, with the orbit's derivative
+    y_start = jax.tree_util.tree_map(
+        lambda y, o: y + (o - jax.lax.stop_gradient(o)), final.y0, orbit
+    )
+    observe = (lambda ts, ys: ys) if observe is None else observe
+    observed, result, steps = _sampled_beat(
+        field, period, y_start, ts, jump_ts, config, observe, final.result
     )
     drift = jnp.maximum(
         jnp.maximum(guess.volume_drift, final.volume_drift),
         jnp.abs(total_volume(final.y_end) - v_ref) / jnp.abs(v_ref),
     )
-    result = diffrax.RESULTS.where(
-        diffrax.is_successful(guess.result), final.result, guess.result
-    )
+    result = diffrax.RESULTS.where(diffrax.is_successful(guess.result), result, guess.result)
     return Beats(
-        ts, final.observed, final.y0, final.y_end, guess.beats + final.beats, final.residual,
-        drift, result, final.num_steps, root.stats["num_steps"],
+        ts, observed, y_start, final.y_end, guess.beats + final.beats, final.residual,
+        drift, result, steps, root.stats["num_steps"],
+    )
+
+
+def _frozen(tree):
+    """``tree`` with its arrays cut from differentiation (``lax.stop_gradient``)."""
+    return jax.tree_util.tree_map(
+        lambda a: jax.lax.stop_gradient(a) if eqx.is_array(a) else a, tree
     )
