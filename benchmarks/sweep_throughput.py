@@ -12,10 +12,10 @@ float64, compile excluded, ``min(timeit.repeat)`` around ``jax.block_until_ready
    beats=N)``) over batch sizes B: compile time, wall time and process CPU time of a steady
    call, beats per second (wall) and per CPU-second, against the issue's 100,000 beats/s;
 2. where the time goes, per member and beat, at B = 1024: the same beats built from public
-   pieces (``cardiosoft.solve.periodic_beats`` on ``cardiosoft.scene_circuit``) with less kept
-   each beat: the solver's steps only, + the 401 interpolated samples, + the signals at them,
-   + the metrics (what ``save="metrics"`` does every beat); one vector-field evaluation; and
-   a variant that keeps nothing for the first N - 1 beats and samples only the last;
+   pieces (``cardiosoft.solve.periodic_beats`` on ``cardiosoft.scene_circuit``): the solver's
+   steps alone (each beat's end state), then with the last beat integrated once more with its
+   401 samples, signals and metrics (what ``save="metrics"`` does); one vector-field
+   evaluation;
 3. scipy ``solve_ivp`` (RK45, the same vector field flattened and jitted, the same rtol/atol,
    piecewise between the actuation kinks) for one member, per beat, against section 1, side by
    side in this run;
@@ -188,47 +188,29 @@ def metrics(circuit, ts, ys):
     ).stroke_volume
 
 
-OBSERVE = {
-    "steps": lambda circuit, ts, ys: ys["volume"][-1],
-    "state": lambda circuit, ts, ys: jax.tree_util.tree_map(lambda a: a[-1], ys),
-    "samples": lambda circuit, ts, ys: jnp.max(ys["volume"]),
-    "signals": lambda circuit, ts, ys: jnp.max(jax.vmap(circuit.signals)(ts, ys)["cable_force"]),
-    "metrics": metrics,
-}
-
-
 @eqx.filter_jit
 def beats_kept(scene, pump, omega, c, config, mode: str, beats: int):
-    """``beats`` beats of each member from rest, keeping what ``mode`` says every beat."""
+    """``beats`` beats of each member from rest: ``"steps"`` keeps each beat's end state only;
+    ``"metrics"`` then integrates the last beat once more with its samples and metrics, as
+    ``solve_beats(save="metrics")`` does."""
 
     def one(o, s):
         member = dataclasses.replace(scene, omega=o, shortening=s)
         circuit = scene_circuit(member, pump, AFTERLOAD * mmHg)
         period = circuit.actuation.period
-
-        def run(y0, n, kept):
-            ts = jnp.reshape(period, (1,)) if kept in ("steps", "state") else save_times(circuit)
-            return periodic_beats(
-                circuit,
-                y0,
-                period,
-                ts,
-                jump_ts=circuit.actuation.kink_times(1),
-                total_volume=circuit.total_volume,
-                max_beats=n,
-                tol=0.0,
-                config=config,
-                observe=lambda ts, ys: OBSERVE[kept](circuit, ts, ys),
-            )
-
-        if mode != "last only":
-            out = run(circuit.init(), beats, mode)
-            return out.observed, out.num_steps
-        # nothing kept for beats - 1 beats (no samples: the end state only), then the last
-        # beat from there, sampled, with its metrics
-        first = run(circuit.init(), beats - 1, "state")
-        out = run(first.observed, 1, "metrics")
-        return out.observed, out.num_steps
+        out = periodic_beats(
+            circuit,
+            circuit.init(),
+            period,
+            None if mode == "steps" else save_times(circuit),
+            jump_ts=circuit.actuation.kink_times(1),
+            total_volume=circuit.total_volume,
+            max_beats=beats,
+            tol=0.0,
+            config=config,
+            observe=lambda ts, ys: metrics(circuit, ts, ys),
+        )
+        return (out.y_end["volume"] if mode == "steps" else out.observed), out.num_steps
 
     return jax.vmap(one)(omega, c)
 
@@ -256,7 +238,7 @@ def profile(scene, pump, batch: int = PROFILE_BATCH, beats: int = BEATS) -> dict
     omega, c = (jnp.asarray(a) for a in designs(batch))
     config = default_config(scene)
     rows = {}
-    for mode in ("steps", "samples", "signals", "metrics", "last only"):
+    for mode in ("steps", "metrics"):
         first, wall, cpu, out = timed(
             lambda mode=mode: beats_kept(scene, pump, omega, c, config, mode, beats)
         )
@@ -269,28 +251,31 @@ def profile(scene, pump, batch: int = PROFILE_BATCH, beats: int = BEATS) -> dict
 
 def print_profile(rows, batch: int = PROFILE_BATCH, beats: int = BEATS):
     n = batch * beats
-    steps = float(np.mean(rows["steps"]["steps"]))
+    steps = float(np.mean(rows["metrics"]["steps"]))
     field = rows["field"]["cpu"] / batch
     print(
         f"2. Where the time goes: B = {batch}, {beats} beats from rest, per member and beat "
         f"(CPU time; wall in brackets); {steps:.1f} solver steps in the last beat"
     )
-    print(f"{'kept every beat':>34} {'us/beat':>9} {'(wall)':>9} {'beats/cpu-s':>11} {'share':>7}")
+    print(f"{'':>44} {'us/beat':>9} {'(wall)':>9} {'beats/cpu-s':>11} {'share':>7}")
     base = rows["metrics"]["cpu"]
     labels = {
-        "steps": "steps only (state at the beat's end)",
-        "samples": "+ 401 interpolated samples",
-        "signals": "+ signals at the samples",
-        "metrics": "+ metrics (= save='metrics')",
-        "last only": "nothing, last beat sampled + metrics",
+        "steps": "steps only (each beat's end state)",
+        "metrics": "+ last beat again, sampled (save='metrics')",
     }
     for mode, label in labels.items():
         r = rows[mode]
         print(
-            f"{label:>34} {1e6 * r['cpu'] / n:>9.1f} {1e6 * r['wall'] / n:>9.1f} "
+            f"{label:>44} {1e6 * r['cpu'] / n:>9.1f} {1e6 * r['wall'] / n:>9.1f} "
             f"{n / r['cpu']:>11,.0f} {r['cpu'] / base:>7.2f}"
         )
     per_step = rows["steps"]["cpu"] / (n * steps)
+    sampled = (rows["metrics"]["cpu"] - rows["steps"]["cpu"]) / batch
+    beat = rows["steps"]["cpu"] / n
+    print(
+        f"   the sampled last beat (401 samples, signals, metrics) costs {1e6 * sampled:.0f} us "
+        f"per member: {sampled / beat:.1f} beats of steps; its share falls as 1 / beats"
+    )
     print(
         f"   one vector-field evaluation: {1e9 * field:.0f} ns per member (CPU); a Tsit5 step "
         f"(6 evaluations, error estimate, step control) costs {1e9 * per_step:.0f} ns, of which "
@@ -457,7 +442,7 @@ def main() -> None:
         f"{sp['atol']:g}, {BEATS} beats from rest ({load()})"
     )
     t_diffrax = ref["wall"] / (ref["batch"] * BEATS)
-    t_last = prof["last only"]["wall"] / (PROFILE_BATCH * BEATS)
+    t_steps = prof["steps"]["wall"] / (PROFILE_BATCH * BEATS)
     print(
         f"   RK45: {1e3 * sp['wall']:.2f} ms per beat wall ({1e3 * sp['cpu']:.2f} ms CPU), "
         f"{sp['nfev']:.0f} field calls per beat"
@@ -468,8 +453,8 @@ def main() -> None:
         f"{sp['cpu'] / (ref['cpu'] / (ref['batch'] * BEATS)):,.0f}x"
     )
     print(
-        f"   with the last beat only sampled (section 2): {1e6 * t_last:.1f} us per beat wall: "
-        f"{sp['wall'] / t_last:,.0f}x RK45"
+        f"   the steps alone (section 2, no samples): {1e6 * t_steps:.1f} us per beat wall: "
+        f"{sp['wall'] / t_steps:,.0f}x RK45"
     )
     if args.quick:
         print(f"\ntotal wall time {time.perf_counter() - start:.0f} s")
@@ -490,7 +475,7 @@ def main() -> None:
             f"{d.max():.2e} ml, median {np.median(d):.2e} ml"
         )
         p32 = f32["profile"]
-        for mode in ("steps", "metrics", "last only"):
+        for mode in ("steps", "metrics"):
             print(
                 f"   float32 {mode:>9}: {PROFILE_BATCH * BEATS / p32[mode]['cpu']:>9,.0f} "
                 f"beats/cpu-s (float64 {PROFILE_BATCH * BEATS / prof[mode]['cpu']:,.0f})"
