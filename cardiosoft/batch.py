@@ -267,19 +267,22 @@ def _members(scene: Scene, omega, shortening, bpm_value, afterload) -> dict:
     return {k: jnp.broadcast_to(v, shape) for k, v in arrays.items()}
 
 
-def _split(scene: Scene):
-    """(structure, numbers): the hashable, static part of ``scene`` and its numbers as arrays."""
+def split_scene(scene: Scene, *, keep_steady: bool = False):
+    """(structure, numbers): the hashable, static part of ``scene`` and its numbers as arrays.
+
+    What the circuit's structure does not depend on is blanked: a scene of another name or
+    accuracy, with the same effects, reuses the compiled solve. ``keep_steady`` keeps
+    ``max_beats`` and ``steady_tol`` (for a caller that rebuilds the scene and passes it to
+    :func:`solve_beats`)."""
     ftype = jnp.result_type(float)
     numbers = {f: jnp.asarray(getattr(scene, f), dtype=ftype) for f in SCENE_NUMBERS}
-    # What the circuit's structure does not depend on is blanked: a scene of another name or
-    # accuracy, with the same effects, reuses the compiled solve.
+    steady = {} if keep_steady else dict(max_beats=0, steady_tol=0.0)
     structure = dataclasses.replace(
         scene,
         **dict.fromkeys(SCENE_NUMBERS),
         **dict.fromkeys(("name", "source", "description", "accuracy"), ""),
         afterloads=(),
-        max_beats=0,
-        steady_tol=0.0,
+        **steady,
     )
     return structure, numbers
 
@@ -419,7 +422,7 @@ def solve_beats(
     pump = load() if pump is None else pump
     config = default_config(scene) if config is None else config
     max_beats, tol = (int(beats), 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
-    structure, numbers = _split(scene)
+    structure, numbers = split_scene(scene)
     method = "beats" if beats is not None else steady
     metrics, traces, out = _solve(
         structure, numbers, pump, _shard(members), max_beats, tol, config, save, method, energy

@@ -89,7 +89,7 @@ import numpy as np
 import optax
 
 from cardiosoft._validate import check_range
-from cardiosoft.batch import SCENE_NUMBERS, STEADY_METHODS, default_config, solve_beats
+from cardiosoft.batch import STEADY_METHODS, default_config, solve_beats, split_scene
 from cardiosoft.experiment import run
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.results import RunResult
@@ -543,19 +543,6 @@ def _problem(
 # ------------------------------------------------------------------------------- the search
 
 
-def _split(scene: Scene):
-    """(structure, numbers): the scene's hashable part (static) and its numbers (array leaves)."""
-    ftype = jnp.result_type(float)
-    numbers = {f: jnp.asarray(getattr(scene, f), dtype=ftype) for f in SCENE_NUMBERS}
-    structure = dataclasses.replace(
-        scene,
-        **dict.fromkeys(SCENE_NUMBERS),
-        **dict.fromkeys(("name", "source", "description", "accuracy"), ""),
-        afterloads=(),
-    )
-    return structure, numbers
-
-
 def _evaluate(z, base, heads, rates, numbers, pump, config, *, structure, space, steady):
     """Metrics (R, K, 5) of candidates ``z`` (R, d) at the K targets, their derivatives with
     respect to z (R, K, 5, d), and (ok (R, K), beats (R, K)).
@@ -642,7 +629,7 @@ class _Evaluator:
         if accuracy is not None and accuracy not in PRESETS:
             raise ValueError(f"accuracy = {accuracy!r}: allowed {', '.join(PRESETS)}")
         config = default_config(scene if accuracy is None else scene.replace(accuracy=accuracy))
-        self.structure, self.numbers = _split(scene)
+        self.structure, self.numbers = split_scene(scene, keep_steady=True)
         self.pump, self.config, self.space, self.steady = pump, config, problem.space, steady
         ftype = jnp.result_type(float)
         self.base = {k: jnp.asarray(v, ftype) for k, v in problem.base.items()}
