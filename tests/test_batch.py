@@ -244,6 +244,40 @@ def test_shooting_derivative_is_that_of_the_orbit(scene):
     assert float(tangent) == pytest.approx(central, rel=1e-4)
 
 
+def test_shooting_derivative_with_equal_steps_matches_central_differences(scene):
+    """The orbit's implicit derivative as the design search takes it (only the theorem's beat
+    and the sampled last beat carry tangents: cardiosoft.solve.shoot_periodic) against central
+    differences of converged orbits, in CI. 400 equal steps per beat, so that both sides of a
+    difference see the same discretisation (as in the jacfwd test above). Measured 2026-12-02
+    (3 Newton steps, cycle change 2e-13 ml): the largest relative difference over SV, peak force,
+    work and efficiency fell with the step as its square, the quotient's truncation error:
+    2.4e-5 at 1e-3, 2.6e-7 at 1e-4, 4e-9 at 1e-5 (relative steps). Held at 1e-5 for 1e-4."""
+    config = SolverConfig(diffrax.Tsit5(), fixed_steps=400, adjoint=diffrax.ForwardMode())
+    head = 60 * mmHg
+
+    def metrics(design):
+        out = solve_beats(
+            scene, omega=design[0], shortening=design[1], afterload=head, save="metrics",
+            steady="shooting", config=config,
+        )
+        values = jnp.stack([getattr(out.metrics, m)[0] for m in METRICS])
+        return values, (values, out.steady[0], out.newton_steps[0])
+
+    jac_and_values = jax.jit(jax.jacfwd(metrics, has_aux=True))
+    design = np.array([4.0, 0.4])
+    jac, (_, steady, newton) = jac_and_values(jnp.asarray(design))
+    assert bool(steady) and int(newton) > 0
+    step = 1e-4 * design
+    for k in range(2):
+        moved = (design + s * step[k] * np.eye(2)[k] for s in (1, -1))
+        shifted = [jac_and_values(jnp.asarray(d))[1] for d in moved]
+        assert all(bool(s) for _, s, _ in shifted)
+        central = (np.asarray(shifted[0][0]) - np.asarray(shifted[1][0])) / (2 * step[k])
+        np.testing.assert_allclose(
+            np.asarray(jac[:, k]), central, rtol=1e-5, err_msg=f"d/d{'Omega C'.split()[k]}"
+        )
+
+
 def test_every_rate_samples_its_beat_end(scene):
     """For ~3 % of rates the last save time over the period rounded to 1 + 1 ULP, past the
     solve's end, and diffrax refused the batch (found freeing bpm in a design search)."""
