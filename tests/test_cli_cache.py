@@ -15,19 +15,20 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 
 
-def simulate(tmp_path, name, *args, **env):
-    """``python -m cardiosoft.simulate`` writing to tmp_path/name, with ``env`` added."""
-    env = {k: v for k, v in {**os.environ, **env}.items() if v is not None}  # None: unset
-    out = tmp_path / name
+def python(*args, **env):
+    """A fresh ``python`` process in the repository, with ``env`` added (None: unset)."""
+    env = {k: v for k, v in {**os.environ, **env}.items() if v is not None}
     done = subprocess.run(
-        [sys.executable, "-m", "cardiosoft.simulate", *args, "--no-plot", "--out", str(out)],
-        cwd=REPO,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
+        [sys.executable, *args], cwd=REPO, env=env, capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 0, done.stderr
+    return done
+
+
+def simulate(tmp_path, name, *args, **env):
+    """``python -m cardiosoft.simulate`` writing to tmp_path/name, with ``env`` added."""
+    out = tmp_path / name
+    done = python("-m", "cardiosoft.simulate", *args, "--no-plot", "--out", str(out), **env)
     return done, json.loads((out / "summary.json").read_text())
 
 
@@ -88,15 +89,5 @@ def test_library_import_leaves_jax_and_equinox_settings_alone():
         "from jax._src import config as c;"
         "print(c.compilation_cache_dir.value, e.EQX_ON_ERROR)"
     )
-    env = {k: v for k, v in os.environ.items() if k not in ("EQX_ON_ERROR",)}
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        cwd=REPO,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert out.returncode == 0, out.stderr
+    out = python("-c", code, EQX_ON_ERROR=None, JAX_COMPILATION_CACHE_DIR=None)
     assert out.stdout.split() == ["None", "raise"]
