@@ -312,10 +312,12 @@ def _one_beat(field, period, y, save_ts, jump_ts, config):
 
 
 def _sampled_beat(field, period, y_start, ts, jump_ts, config, observe, result):
-    """The beat from ``y_start`` once more, sampled at ``ts``: (observed, result, steps)."""
+    """The beat from ``y_start`` once more, sampled at ``ts``: (observed, result, steps);
+    ``observe=None`` observes the states themselves."""
     # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
     last = _one_beat(field, period, y_start, jnp.clip(ts / period, 0.0, 1.0), jump_ts, config)
-    return observe(ts, last.ys), _finite_or_failed(last.ys, result), last.stats["num_steps"]
+    observed = last.ys if observe is None else observe(ts, last.ys)
+    return observed, _finite_or_failed(last.ys, result), last.stats["num_steps"]
 
 
 def _finite_or_failed(states, result):
@@ -371,7 +373,6 @@ def periodic_beats(
     stops its element and is reported in ``result``; nothing is raised.
     """
     config = preset("default") if config is None else config
-    observe = (lambda ts, ys: ys) if observe is None else observe
     ftype = jnp.result_type(float)
     v_ref = total_volume(y0)
 
@@ -526,7 +527,6 @@ def shoot_periodic(
     y_start = jax.tree_util.tree_map(
         lambda y, o: y + (o - jax.lax.stop_gradient(o)), final.y0, orbit
     )
-    observe = (lambda ts, ys: ys) if observe is None else observe
     observed, result, steps = _sampled_beat(
         field, period, y_start, ts, jump_ts, config, observe, final.result
     )
