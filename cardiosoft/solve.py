@@ -509,21 +509,22 @@ def shoot_periodic(
     root = optx.root_find(beat_map, newton, u0, args=frozen, max_steps=max_newton, throw=False)
     converged = optx.RESULTS.successful == root.result
     finite = jnp.all(jnp.isfinite(root.value))
-    u_root = jnp.where(converged & finite, root.value, u0)
-    # The implicit function theorem as one Newton step whose value is zero: start equals
-    # u_root, and its derivative is -(dG/du)^-1 dG/dtheta (G = beat_map, dG/du frozen). From
-    # the guess, if Newton failed, it is that formula at the guess: approximate, and the
-    # fallback's beats say whether that point is steady. A singular dG/du (no isolated orbit)
-    # makes start NaN, and the member fails rather than carry a wrong derivative.
-    jac = jax.jacfwd(beat_map)(u_root, frozen)
-    g = beat_map(u_root, live)
-    start = u_root - jnp.linalg.solve(jac, g - jax.lax.stop_gradient(g))
-    orbit = to_state(start, v_ref)
+    start = jnp.where(converged & finite, root.value, u0)
     final = periodic_beats(
-        field_f, _frozen(orbit), period_f, None, jump_ts=jump_ts_f, total_volume=total_volume,
-        max_beats=max_beats, tol=tol, config=config,
+        field_f, _frozen(to_state(start, v_ref)), period_f, None, jump_ts=jump_ts_f,
+        total_volume=total_volume, max_beats=max_beats, tol=tol, config=config,
     )
-    # the last beat's start, as the beats found it, with the orbit's derivative
+    # The implicit function theorem at the last beat's start, as one Newton step whose value
+    # is zero: u_last keeps its value, and its derivative is -(dG/du)^-1 dG/dtheta (G =
+    # beat_map, dG/du frozen). At a converged root that is the orbit's; if Newton failed, it
+    # is taken where the fallback's beats ended (within their residual of the orbit), not at
+    # the guess, where it was measured wrong in sign on the ringing bench. A singular dG/du
+    # (no isolated orbit) makes the state NaN: the member fails rather than carry a wrong
+    # derivative.
+    u_last = to_unknowns(final.y0)
+    jac = jax.jacfwd(beat_map)(u_last, frozen)
+    g = beat_map(u_last, live)
+    orbit = to_state(u_last - jnp.linalg.solve(jac, g - jax.lax.stop_gradient(g)), v_ref)
     y_start = jax.tree_util.tree_map(
         lambda y, o: y + (o - jax.lax.stop_gradient(o)), final.y0, orbit
     )
