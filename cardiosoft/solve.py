@@ -427,17 +427,17 @@ def shoot_periodic(
        (ml, ml/s, mmHg). Its Jacobian comes from forward-mode derivatives of the beat (a 2-5
        dimensional state), and the root is differentiated implicitly: ``jax.jvp``/``jacfwd`` of
        anything downstream see ``dy*/dtheta = -(dPhi/dy - I)^-1 dPhi/dtheta``, not the
-       derivative of the beats that led there. Only that one beat and the sampled last beat
-       carry derivatives; the beats before and after Newton, and Newton itself, run on frozen
-       inputs (carrying tangents through them took about 40 % more tracing, #13). ``closed``:
-       the circuit conserves its total fluid volume (no preload), so the orbits form a family,
-       one per total; the pump volume is then eliminated, ``V = total_volume(y0) -
-       (total_volume(y) - V)``. Accumulators (:data:`ACCUMULATORS`) are bookkeeping, read by
-       nothing but the volume check: with a preload (an open circuit, whose total the orbit does
-       not fix) the first is re-based so that the total volume is that of ``y0``. Left at its
-       guessed value, Newton's move of the pump volume and the Windkessel pressure showed as a
-       volume drift of up to 0.78 (relative; lv-systemic and rv-pulmonary at 240-300 bpm), now
-       ~1e-15.
+       derivative of the beats that led there, evaluated at the last beat's start (step 3). Only
+       that one beat and the sampled last beat carry derivatives; the beats before and after
+       Newton, and Newton itself, run on frozen inputs (carrying tangents through them took
+       about 40 % more tracing, #13). ``closed``: the circuit conserves its total fluid volume
+       (no preload), so the orbits form a family, one per total; the pump volume is then
+       eliminated, ``V = total_volume(y0) - (total_volume(y) - V)``. Accumulators
+       (:data:`ACCUMULATORS`) are bookkeeping, read by nothing but the volume check: with a
+       preload (an open circuit, whose total the orbit does not fix) the first is re-based so
+       that the total volume is that of ``y0``. Left at its guessed value, Newton's move of the
+       pump volume and the Windkessel pressure showed as a volume drift of up to 0.78 (relative;
+       lv-systemic and rv-pulmonary at 240-300 bpm), now ~1e-15.
     3. From the orbit (or, if Newton failed, from the guess), beat after beat as in
        :func:`periodic_beats` until the cycle-to-cycle change is below ``tol``, at most
        ``max_beats``: at a converged orbit that is two beats (the steady test), then the last
