@@ -425,24 +425,20 @@ def shoot_periodic(
     2. Newton's method (``optimistix.root_find``) on ``u -> Phi(u) - u``, ``Phi`` the state one
        beat later, in the periodic states of :data:`PERIODIC_SCALES` divided by their scales
        (ml, ml/s, mmHg). Its Jacobian comes from forward-mode derivatives of the beat (a 2-5
-       dimensional state), and the root is differentiated implicitly: ``jax.jvp``/``jacfwd`` of
-       anything downstream see ``dy*/dtheta = -(dPhi/dy - I)^-1 dPhi/dtheta``, not the
-       derivative of the beats that led there, evaluated at the last beat's start (step 3). Only
-       that one beat and the sampled last beat carry derivatives; the beats before and after
-       Newton, and Newton itself, run on frozen inputs (carrying tangents through them took
-       about 40 % more tracing, #13). ``closed``: the circuit conserves its total fluid volume
-       (no preload), so the orbits form a family, one per total; the pump volume is then
-       eliminated, ``V = total_volume(y0) - (total_volume(y) - V)``. Accumulators
-       (:data:`ACCUMULATORS`) are bookkeeping, read by nothing but the volume check: with a
-       preload (an open circuit, whose total the orbit does not fix) the first is re-based so
-       that the total volume is that of ``y0``. Left at its guessed value, Newton's move of the
-       pump volume and the Windkessel pressure showed as a volume drift of up to 0.78 (relative;
-       lv-systemic and rv-pulmonary at 240-300 bpm), now ~1e-15.
+       dimensional state), and the root is differentiated implicitly (``ImplicitAdjoint``):
+       ``jax.jvp``/``jacfwd`` of anything downstream see ``dy*/dtheta = -(dPhi/dy - I)^-1
+       dPhi/dtheta``, not the derivative of the beats that led there. ``closed``: the circuit
+       conserves its total fluid volume (no preload), so the orbits form a family, one per total;
+       the pump volume is then eliminated, ``V = total_volume(y0) - (total_volume(y) - V)``.
+       Accumulators (:data:`ACCUMULATORS`) are bookkeeping, read by nothing but the volume
+       check: with a preload (an open circuit, whose total the orbit does not fix) the first
+       is re-based so that the total volume is that of ``y0``. Left at its guessed value,
+       Newton's move of the pump volume and the Windkessel pressure showed as a volume drift
+       of up to 0.78 (relative; lv-systemic and rv-pulmonary at 240-300 bpm), now ~1e-15.
     3. From the orbit (or, if Newton failed, from the guess), beat after beat as in
        :func:`periodic_beats` until the cycle-to-cycle change is below ``tol``, at most
-       ``max_beats``: at a converged orbit that is two beats (the steady test), then the last
-       once more with its samples for ``observe``; otherwise beat after beat is the fallback,
-       and ``residual`` says how it ended.
+       ``max_beats``: at a converged orbit that is one beat, whose samples ``observe`` sees;
+       otherwise beat after beat is the fallback, and ``residual`` says how it ended.
 
     ``beats`` counts the beats of steps 1 and 3; ``newton_steps`` the iterations of step 2 (each
     costs about one beat per state component more). The arguments are those of
@@ -450,10 +446,9 @@ def shoot_periodic(
     """
     config = preset("default") if config is None else config
     v_ref = total_volume(y0)
-    field_f, y0_f, period_f, jump_ts_f = _frozen((field, y0, period, jump_ts))
     guess = periodic_beats(
-        field_f, y0_f, period_f, None, jump_ts=jump_ts_f,
-        total_volume=total_volume, max_beats=guess_beats, tol=tol, config=config,
+        field, y0, period, None, jump_ts=jump_ts, total_volume=total_volume,
+        max_beats=guess_beats, tol=tol, config=config,
     )
     flat, treedef = jax.tree_util.tree_flatten_with_path(guess.y_end)
     names = [path[-1].key for path, _ in flat]
@@ -470,7 +465,7 @@ def shoot_periodic(
         leaves = jax.tree_util.tree_leaves(y)
         return jnp.stack([leaves[i] for i in unknown]) / scales
 
-    def to_state(u, v_ref):
+    def to_state(u):
         leaves = list(template)
         for k, i in enumerate(unknown):
             leaves[i] = u[k] * scales[k]
@@ -493,9 +488,8 @@ def shoot_periodic(
         return y
 
     def beat_map(u, args):
-        field, period, jump_ts, v_ref = args
         sol = integrate(
-            _in_phase, to_state(u, v_ref), 0.0, 1.0, args=(field, period),
+            _in_phase, to_state(u), 0.0, 1.0, args=(field, period),
             jump_ts=jump_ts / period, config=config,
         )
         y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
@@ -504,46 +498,22 @@ def shoot_periodic(
     # Newton's own tolerance, in the scaled units: well inside the steady tolerance
     newton = optx.Newton(rtol=1e-8, atol=0.1 * tol + 1e-9)
     u0 = to_unknowns(guess.y_end)
-    live = (field, period, jump_ts, v_ref)
-    frozen = _frozen(live)
-    root = optx.root_find(beat_map, newton, u0, args=frozen, max_steps=max_newton, throw=False)
+    root = optx.root_find(beat_map, newton, u0, max_steps=max_newton, throw=False)
     converged = optx.RESULTS.successful == root.result
     finite = jnp.all(jnp.isfinite(root.value))
     start = jnp.where(converged & finite, root.value, u0)
     final = periodic_beats(
-        field_f, _frozen(to_state(start, v_ref)), period_f, None, jump_ts=jump_ts_f,
-        total_volume=total_volume, max_beats=max_beats, tol=tol, config=config,
-    )
-    # The implicit function theorem at the last beat's start, as one Newton step whose value
-    # is zero: u_last keeps its value, and its derivative is -(dG/du)^-1 dG/dtheta (G =
-    # beat_map, dG/du frozen). At a converged root that is the orbit's; if Newton failed, it
-    # is taken where the fallback's beats ended (within their residual of the orbit), not at
-    # the guess, where it was measured wrong in sign on the ringing bench. A singular dG/du
-    # (no isolated orbit) makes the state NaN: the member fails rather than carry a wrong
-    # derivative.
-    u_last = to_unknowns(final.y0)
-    jac = jax.jacfwd(beat_map)(u_last, frozen)
-    g = beat_map(u_last, live)
-    orbit = to_state(u_last - jnp.linalg.solve(jac, g - jax.lax.stop_gradient(g)), v_ref)
-    y_start = jax.tree_util.tree_map(
-        lambda y, o: y + (o - jax.lax.stop_gradient(o)), final.y0, orbit
-    )
-    observed, result, steps = _sampled_beat(
-        field, period, y_start, ts, jump_ts, config, observe, final.result
+        field, to_state(start), period, ts, jump_ts=jump_ts, total_volume=total_volume,
+        max_beats=max_beats, tol=tol, config=config, observe=observe,
     )
     drift = jnp.maximum(
         jnp.maximum(guess.volume_drift, final.volume_drift),
         jnp.abs(total_volume(final.y_end) - v_ref) / jnp.abs(v_ref),
     )
-    result = diffrax.RESULTS.where(diffrax.is_successful(guess.result), result, guess.result)
-    return Beats(
-        ts, observed, y_start, final.y_end, guess.beats + final.beats, final.residual,
-        drift, result, steps, root.stats["num_steps"],
+    result = diffrax.RESULTS.where(
+        diffrax.is_successful(guess.result), final.result, guess.result
     )
-
-
-def _frozen(tree):
-    """``tree`` with its arrays cut from differentiation (``lax.stop_gradient``)."""
-    return jax.tree_util.tree_map(
-        lambda a: jax.lax.stop_gradient(a) if eqx.is_array(a) else a, tree
+    return Beats(
+        ts, final.observed, final.y0, final.y_end, guess.beats + final.beats, final.residual,
+        drift, result, final.num_steps, root.stats["num_steps"],
     )

@@ -245,13 +245,13 @@ def test_shooting_derivative_is_that_of_the_orbit(scene):
 
 
 def test_shooting_derivative_with_equal_steps_matches_central_differences(scene):
-    """The orbit's implicit derivative as the design search takes it (only the theorem's beat
-    and the sampled last beat carry tangents: cardiosoft.solve.shoot_periodic) against central
-    differences of converged orbits, in CI. 400 equal steps per beat, so that both sides of a
-    difference see the same discretisation (as in the jacfwd test above). Measured 2026-12-02
-    (3 Newton steps, cycle change 2e-13 ml): the largest relative difference over SV, peak force,
-    work and efficiency fell with the step as its square, the quotient's truncation error:
-    2.4e-5 at 1e-3, 2.6e-7 at 1e-4, 4e-9 at 1e-5 (relative steps). Held at 1e-5 for 1e-4."""
+    """The orbit's implicit derivative (optimistix's, through the Newton root:
+    cardiosoft.solve.shoot_periodic) against central differences of converged orbits, in CI. 400
+    equal steps per beat, so that both sides of a difference see the same discretisation (as in
+    the jacfwd test above). Measured 2026-12-02 (3 Newton steps, cycle change 2e-13 ml): the
+    largest relative difference over SV, peak force, work and efficiency fell with the step as
+    its square, the quotient's truncation error: 2.4e-5 at 1e-3, 2.6e-7 at 1e-4, 4e-9 at 1e-5
+    (relative steps). Held at 1e-5 for 1e-4."""
     config = SolverConfig(diffrax.Tsit5(), fixed_steps=400, adjoint=diffrax.ForwardMode())
     head = 60 * mmHg
 
@@ -276,35 +276,6 @@ def test_shooting_derivative_with_equal_steps_matches_central_differences(scene)
         np.testing.assert_allclose(
             np.asarray(jac[:, k]), central, rtol=1e-5, err_msg=f"d/d{'Omega C'.split()[k]}"
         )
-
-
-def test_shooting_derivative_where_newton_fails_is_that_of_the_orbit(scene):
-    """Where Newton shooting fails (8 iterations; the ringing bench at 60 bpm, 90 mmHg, Omega
-    4.875, C 0.25, found by the design notebook's Pareto front) the beats after it are the
-    fallback, and the derivative is the implicit one at their last beat (within their residual
-    of the orbit). Against central differences of orbits converged beat after beat to 1e-7:
-    175.3 ml per unit C against 175.7 (measured 2026-12-02, relative step 4e-4; the quotient
-    still moves by 1 % between steps 1e-3 and 1e-4 here). Taken at Newton's last guess instead,
-    it was -663."""
-    kw = dict(omega=4.875, bpm=60.0, afterload=90 * mmHg, save="metrics")
-
-    @jax.jit
-    def sv_tangent_newton(c):
-        def sv(c):
-            out = solve_beats(scene, shortening=c, steady="shooting", **kw)
-            return out.metrics.stroke_volume[0], out.newton_steps[0]
-
-        _, tangent, newton = jax.jvp(sv, (c,), (jnp.ones_like(c),), has_aux=True)
-        return tangent, newton
-
-    tangent, newton = sv_tangent_newton(jnp.asarray(0.25))
-    assert int(newton) == 8  # Newton's limit: the fallback is what this test is about
-    h = 1e-4
-    tight = scene.replace(steady_tol=1e-7, max_beats=400)
-    out = solve_beats(tight, shortening=jnp.asarray([0.25 - h, 0.25 + h]), steady="beats", **kw)
-    assert bool(jnp.all(out.steady))
-    central = float(out.metrics.stroke_volume[1] - out.metrics.stroke_volume[0]) / (2 * h)
-    assert float(tangent) == pytest.approx(central, rel=0.01)
 
 
 def test_every_rate_samples_its_beat_end(scene):
