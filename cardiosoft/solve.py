@@ -311,15 +311,6 @@ def _one_beat(field, period, y, save_ts, jump_ts, config):
     )
 
 
-def _sampled_beat(field, period, y_start, ts, jump_ts, config, observe, result):
-    """The beat from ``y_start`` once more, sampled at ``ts``: (observed, result, steps);
-    ``observe=None`` observes the states themselves."""
-    # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
-    last = _one_beat(field, period, y_start, jnp.clip(ts / period, 0.0, 1.0), jump_ts, config)
-    observed = last.ys if observe is None else observe(ts, last.ys)
-    return observed, _finite_or_failed(last.ys, result), last.stats["num_steps"]
-
-
 def _finite_or_failed(states, result):
     # A state that is not finite after a successful solve is a broken invariant, never a
     # result: diffrax checks the save times with a host callback that raises, which the CLIs
@@ -397,9 +388,10 @@ def periodic_beats(
     if ts is None:
         observed, steps, result = None, jnp.array(0), _finite_or_failed(y_end, result)
     else:
-        observed, result, steps = _sampled_beat(
-            field, period, y_start, ts, jump_ts, config, observe, result
-        )
+        # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
+        last = _one_beat(field, period, y_start, jnp.clip(ts / period, 0.0, 1.0), jump_ts, config)
+        observed = last.ys if observe is None else observe(ts, last.ys)
+        result, steps = _finite_or_failed(last.ys, result), last.stats["num_steps"]
     return Beats(ts, observed, y_start, y_end, beats, residual, drift, result, steps, jnp.array(0))
 
 
