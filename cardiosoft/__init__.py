@@ -19,6 +19,7 @@ from cardiosoft.batch import BeatSolution as BeatSolution
 from cardiosoft.batch import StaticSolution as StaticSolution
 from cardiosoft.batch import scene_circuit as scene_circuit
 from cardiosoft.batch import solve_beats as solve_beats
+from cardiosoft.batch import solve_orbit as solve_orbit
 from cardiosoft.batch import solve_static as solve_static
 from cardiosoft.experiment import run as run
 from cardiosoft.experiment import run_designs as run_designs
@@ -56,6 +57,7 @@ __all__ = [
     "run_designs",
     "scene_circuit",
     "solve_beats",
+    "solve_orbit",
     "solve_static",
     "summary_records",
     "units",

@@ -53,9 +53,10 @@ def use_compile_cache() -> Path | None:
       being raised: its solves run with ``throw=False`` and report diffrax's result codes; the
       checks left are diffrax's on the save times (which cardiosoft builds increasing, clipped
       to the beat: a violation would give non-finite samples, which ``periodic_beats`` reports
-      as a failed solve) and lineax's singular-system check in the derivative of the shooting
-      root (a NaN derivative, which the design search rejects; its answer is verified by
-      ``run()``). The whole analysis is in the commit that added this function.
+      as a failed solve) and lineax's on the derivatives of a stiff solver's linear solves,
+      which the implicit derivative of an orbit never feeds a NaN
+      (:func:`cardiosoft.solve.orbit_beat`). The whole analysis is in the commit that added
+      this function.
     """
     import jax
 

@@ -42,7 +42,9 @@ constant in the parameters, and the derivative agrees with finite differences of
 to about the steady tolerance: measured at Omega 4, C 0.4, 60 mmHg with the default preset,
 d SV / d C = 58.16 ml against central differences of independently converged runs of 57.90 to
 58.16 ml (steps 1e-4 to 1e-2 in C), within 0.5 %; with the beats fixed and equal steps, to
-1e-4 or better (``tests/test_batch.py``).
+1e-4 or better (``tests/test_batch.py``). With ``steady="shooting"`` the derivative is the
+periodic orbit's itself (implicit function theorem), and :func:`solve_orbit` gives it from an
+orbit found earlier without derivatives (the design search's way: two smaller compiles).
 
 Which metrics are smooth: the mechanical and hydraulic work and the stroke work are quadratures
 of the samples, smooth in every parameter; the efficiency is their ratio. The stroke volume
@@ -69,7 +71,7 @@ from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
 from cardiosoft.metrics import BeatMetrics, beat_metrics
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
-from cardiosoft.solve import SolverConfig, periodic_beats, preset, shoot_periodic
+from cardiosoft.solve import SolverConfig, orbit_beat, periodic_beats, preset, shoot_periodic
 from cardiosoft.static import column_stiffness, static_strokes
 from cardiosoft.units import RHO_WATER, G, bpm, mmHg
 
@@ -81,6 +83,7 @@ __all__ = [
     "default_config",
     "scene_circuit",
     "solve_beats",
+    "solve_orbit",
     "solve_static",
 ]
 
@@ -173,6 +176,8 @@ class BeatSolution(eqx.Module):
     - ``traces``: with ``save="traces"``, the last beat: ``time`` (s, from 0 to the period),
       ``volume`` and the other states, and every signal of :meth:`PumpCircuit.signals`;
       ``None`` with ``save="metrics"``.
+    - ``y0``: the state at the start of the last beat (SI, a dict by the state's names): on a
+      steady member a point of its periodic orbit, where :func:`solve_orbit` starts.
     - ``beats``: beats integrated; ``residual``: the cycle-to-cycle change of the last beat
       (ml, ml/s or mmHg); ``volume_drift``: the largest relative change of the total fluid
       volume; ``result``: diffrax's result; ``num_steps``: solver steps of the last beat;
@@ -184,6 +189,7 @@ class BeatSolution(eqx.Module):
     members: dict
     metrics: BeatMetrics
     traces: dict | None
+    y0: dict
     beats: jax.Array
     residual: jax.Array
     volume_drift: jax.Array
@@ -329,7 +335,7 @@ def _metrics(circuit: PumpCircuit, ts, ys):
 @eqx.filter_jit
 def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save, steady, energy):
     def one(member):
-        values = {k: v for k, v in member.items() if k != "afterload"}
+        values = {k: v for k, v in member.items() if k not in ("afterload", "start")}
         scene = dataclasses.replace(structure, **(numbers | values))
         circuit = scene_circuit(scene, pump, member["afterload"], energy=energy)
         ts = _save_times(circuit.actuation)
@@ -343,7 +349,21 @@ def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save,
             observe=observe,
         )
         period = circuit.actuation.period
-        if steady == "shooting":
+        if steady == "orbit":
+            init = circuit.init()
+            # a start that is not finite (a failed member's) begins at rest instead: its beat
+            # is then far from periodic, and the member reported not steady
+            leaves = jax.tree_util.tree_leaves(member["start"])
+            finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in leaves]))
+            start = jax.tree_util.tree_map(
+                lambda a, b: jnp.where(finite, a, b), member["start"], init
+            )
+            out = orbit_beat(
+                circuit, start, period, ts, jump_ts=common["jump_ts"],
+                total_volume=circuit.total_volume, v_ref=circuit.total_volume(init),
+                closed=circuit.preload is None, config=config, observe=observe,
+            )
+        elif steady == "shooting":
             out = shoot_periodic(
                 circuit, circuit.init(), period, ts, closed=circuit.preload is None,
                 guess_beats=min(GUESS_BEATS, max_beats), **common,
@@ -427,10 +447,82 @@ def solve_beats(
     metrics, traces, out = _solve(
         structure, numbers, pump, _shard(members), max_beats, tol, config, save, method, energy
     )
+    return _solution(scene, members, config, metrics, traces, out, beats is not None)
+
+
+def solve_orbit(
+    scene,
+    start: dict,
+    *,
+    omega=None,
+    shortening=None,
+    bpm=None,
+    afterload=None,
+    save: str = "traces",
+    energy: bool = False,
+    pump: PumpSurrogate | None = None,
+    config: SolverConfig | None = None,
+) -> BeatSolution:
+    """One beat of each member from ``start``, a point of its periodic orbit, differentiated as
+    the orbit.
+
+    ``start`` is the ``y0`` of a steady :class:`BeatSolution` of the same members (the same
+    scene, ``energy`` setting and batch). The value is that one beat, as :func:`solve_beats`
+    samples it; ``residual`` is its cycle-to-cycle change, so ``steady`` says whether ``start``
+    was on the orbit. The derivative (``jax.jvp``, ``jax.jacfwd``) is the periodic steady
+    state's, by the implicit function theorem at ``start``
+    (:func:`cardiosoft.solve.orbit_beat`), whatever ``start``'s own derivative: at a converged
+    orbit that of ``solve_beats(steady="shooting")``. Finding the orbits without derivatives,
+    then differentiating them here, compiles two smaller programs instead of one larger one
+    (the design search does so, #13). A start that is not finite begins at rest instead (that
+    member is then not steady). The other arguments are those of :func:`solve_beats`.
+    """
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    if scene.static:
+        raise ValueError(f"scene {scene.name} is static: it has no orbit")
+    if save not in SAVE_MODES:
+        raise ValueError(f"save = {save!r}: allowed {', '.join(SAVE_MODES)}")
+    pump = load() if pump is None else pump
+    config = default_config(scene) if config is None else config
+    members = _members(scene, omega, shortening, bpm, afterload)
+    head = members["afterload"][0]
+    states = jax.eval_shape(lambda: scene_circuit(scene, pump, head, energy=energy).init())
+    if not isinstance(start, dict):
+        raise ValueError(f"start: a dict of states (the y0 of solve_beats), got {type(start)}")
+    if jax.tree_util.tree_structure(start) != jax.tree_util.tree_structure(states):
+        raise ValueError(
+            f"start: states {_names(start)} do not match the states {_names(states)} of scene "
+            f"{scene.name} with energy={energy}: give the y0 of its solve_beats"
+        )
+    sizes = {jnp.shape(a)[:1] for a in jax.tree_util.tree_leaves(start)}
+    if len(sizes) != 1 or any(jnp.ndim(a) != 1 for a in jax.tree_util.tree_leaves(start)):
+        raise ValueError("start: one 1-D array per state, one entry per member (a y0)")
+    (shape,) = sizes
+    try:
+        members = {k: jnp.broadcast_to(v, shape) for k, v in members.items()}
+    except ValueError:
+        raise ValueError(
+            f"start: {shape[0]} members, but the members given are "
+            f"{next(iter(members.values())).shape[0]}"
+        ) from None
+    structure, numbers = split_scene(scene)
+    batch = _shard({**members, "start": start})
+    metrics, traces, out = _solve(
+        structure, numbers, pump, batch, 1, 0.0, config, save, "orbit", energy
+    )
+    return _solution(scene, members, config, metrics, traces, out, True)
+
+
+def _names(states) -> str:
+    return ", ".join(sorted(_flat_states(states)))
+
+
+def _solution(scene, members, config, metrics, traces, out, fixed_beats) -> BeatSolution:
     return BeatSolution(
         members=members,
         metrics=metrics,
         traces=traces,
+        y0=out.y0,
         beats=out.beats,
         residual=out.residual,
         volume_drift=out.volume_drift,
@@ -438,7 +530,7 @@ def solve_beats(
         num_steps=out.num_steps,
         newton_steps=out.newton_steps,
         steady_tol=float(scene.steady_tol),
-        fixed_beats=beats is not None,
+        fixed_beats=fixed_beats,
         max_steps=config.max_steps,
     )
 

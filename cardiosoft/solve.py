@@ -31,6 +31,7 @@ __all__ = [
     "Beats",
     "SolverConfig",
     "integrate",
+    "orbit_beat",
     "periodic_beats",
     "preset",
     "respond",
@@ -416,21 +417,28 @@ def shoot_periodic(
     1. ``guess_beats`` beats from ``y0`` (beat after beat; fewer if already steady): the guess.
     2. Newton's method (``optimistix.root_find``) on ``u -> Phi(u) - u``, ``Phi`` the state one
        beat later, in the periodic states of :data:`PERIODIC_SCALES` divided by their scales
-       (ml, ml/s, mmHg). Its Jacobian comes from forward-mode derivatives of the beat (a 2-5
-       dimensional state), and the root is differentiated implicitly (``ImplicitAdjoint``):
-       ``jax.jvp``/``jacfwd`` of anything downstream see ``dy*/dtheta = -(dPhi/dy - I)^-1
-       dPhi/dtheta``, not the derivative of the beats that led there. ``closed``: the circuit
-       conserves its total fluid volume (no preload), so the orbits form a family, one per total;
-       the pump volume is then eliminated, ``V = total_volume(y0) - (total_volume(y) - V)``.
-       Accumulators (:data:`ACCUMULATORS`) are bookkeeping, read by nothing but the volume
-       check: with a preload (an open circuit, whose total the orbit does not fix) the first
-       is re-based so that the total volume is that of ``y0``. Left at its guessed value,
-       Newton's move of the pump volume and the Windkessel pressure showed as a volume drift
-       of up to 0.78 (relative; lv-systemic and rv-pulmonary at 240-300 bpm), now ~1e-15.
+       (ml, ml/s, mmHg); its Jacobian comes from forward-mode derivatives of the beat (a 2-5
+       dimensional state). ``closed``: the circuit conserves its total fluid volume (no
+       preload), so the orbits form a family, one per total; the pump volume is then
+       eliminated, ``V = total_volume(y0) - (total_volume(y) - V)``. Accumulators
+       (:data:`ACCUMULATORS`) are bookkeeping, read by nothing but the volume check: with a
+       preload (an open circuit, whose total the orbit does not fix) the first is re-based so
+       that the total volume is that of ``y0``. Left at its guessed value, Newton's move of the
+       pump volume and the Windkessel pressure showed as a volume drift of up to 0.78
+       (relative; lv-systemic and rv-pulmonary at 240-300 bpm), now ~1e-15.
     3. From the orbit (or, if Newton failed, from the guess), beat after beat as in
        :func:`periodic_beats` until the cycle-to-cycle change is below ``tol``, at most
-       ``max_beats``: at a converged orbit that is one beat, whose samples ``observe`` sees;
-       otherwise beat after beat is the fallback, and ``residual`` says how it ended.
+       ``max_beats``: at a converged orbit that is two beats (the steady test); otherwise beat
+       after beat is the fallback, and ``residual`` says how it ended. The last beat is then
+       integrated once more with its samples, by :func:`orbit_beat`.
+
+    **Derivatives** (``jax.jvp``/``jacfwd`` of anything downstream) are the periodic orbit's,
+    ``dy*/dtheta = -(dPhi/dy - I)^-1 dPhi/dtheta`` (implicit function theorem), taken at the
+    last beat's start: at Newton's root when it converged, where the fallback's beats ended
+    when it did not (there the beats before it were measured wrong in sign: -663 against 175.7
+    ml per unit C on the ringing bench, ``tests/test_batch.py``). Steps 1-3 run on inputs cut
+    from differentiation; only :func:`orbit_beat` carries tangents (tracing tangents through
+    every beat took about 40 % more tracing, #13).
 
     ``beats`` counts the beats of steps 1 and 3; ``newton_steps`` the iterations of step 2 (each
     costs about one beat per state component more). The arguments are those of
@@ -438,74 +446,185 @@ def shoot_periodic(
     """
     config = preset("default") if config is None else config
     v_ref = total_volume(y0)
-    guess = periodic_beats(
-        field, y0, period, None, jump_ts=jump_ts, total_volume=total_volume,
-        max_beats=guess_beats, tol=tol, config=config,
-    )
-    flat, treedef = jax.tree_util.tree_flatten_with_path(guess.y_end)
-    names = [path[-1].key for path, _ in flat]
-    unknown = [
-        i for i, name in enumerate(names)
-        if name in PERIODIC_SCALES and not (closed and name == "volume")
-    ]
-    scales = jnp.asarray([PERIODIC_SCALES[names[i]] for i in unknown])
-    template = [leaf for _, leaf in flat]
-    # the accumulator re-based in an open circuit (total_volume is affine in it, slope +-1)
-    rebase = None if closed else next((i for i, n in enumerate(names) if n in ACCUMULATORS), None)
-
-    def to_unknowns(y):
-        leaves = jax.tree_util.tree_leaves(y)
-        return jnp.stack([leaves[i] for i in unknown]) / scales
-
-    def to_state(u):
-        leaves = list(template)
-        for k, i in enumerate(unknown):
-            leaves[i] = u[k] * scales[k]
-        y = jax.tree_util.tree_unflatten(treedef, leaves)
-        if closed:
-            others = total_volume({**y, "volume": jnp.zeros_like(y["volume"])})
-            y = {**y, "volume": v_ref - others}
-        elif rebase is not None:
-
-            def with_leaf(a):
-                return jax.tree_util.tree_unflatten(
-                    treedef, [*leaves[:rebase], a, *leaves[rebase + 1 :]]
-                )
-
-            acc = leaves[rebase]
-            total, slope = jax.jvp(
-                lambda a: total_volume(with_leaf(a)), (acc,), (jnp.ones_like(acc),)
-            )
-            y = with_leaf(acc + (v_ref - total) / slope)
-        return y
+    field_f, y0_f, period_f, jump_ts_f, v_ref_f = _frozen((field, y0, period, jump_ts, v_ref))
+    beats = dict(jump_ts=jump_ts_f, total_volume=total_volume, tol=tol, config=config)
+    guess = periodic_beats(field_f, y0_f, period_f, None, max_beats=guess_beats, **beats)
+    unknowns = _Unknowns(guess.y_end, closed, total_volume)
 
     def beat_map(u, args):
-        sol = integrate(
-            _in_phase, to_state(u), 0.0, 1.0, args=(field, period),
-            jump_ts=jump_ts / period, config=config,
-        )
-        y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
-        return to_unknowns(y_end) - u
+        y = unknowns.state(u, v_ref_f)
+        return unknowns.of(_beat_end(field_f, period_f, y, jump_ts_f, config)) - u
 
     # Newton's own tolerance, in the scaled units: well inside the steady tolerance
     newton = optx.Newton(rtol=1e-8, atol=0.1 * tol + 1e-9)
-    u0 = to_unknowns(guess.y_end)
+    u0 = unknowns.of(guess.y_end)
     root = optx.root_find(beat_map, newton, u0, max_steps=max_newton, throw=False)
     converged = optx.RESULTS.successful == root.result
     finite = jnp.all(jnp.isfinite(root.value))
     start = jnp.where(converged & finite, root.value, u0)
     final = periodic_beats(
-        field, to_state(start), period, ts, jump_ts=jump_ts, total_volume=total_volume,
-        max_beats=max_beats, tol=tol, config=config, observe=observe,
+        field_f, unknowns.state(start, v_ref_f), period_f, None, max_beats=max_beats, **beats
     )
-    drift = jnp.maximum(
-        jnp.maximum(guess.volume_drift, final.volume_drift),
-        jnp.abs(total_volume(final.y_end) - v_ref) / jnp.abs(v_ref),
+    last = orbit_beat(
+        field, final.y0, period, ts, jump_ts=jump_ts, total_volume=total_volume, v_ref=v_ref,
+        closed=closed, config=config, observe=observe,
     )
+    drift = jnp.maximum(jnp.maximum(guess.volume_drift, final.volume_drift), last.volume_drift)
     result = diffrax.RESULTS.where(
-        diffrax.is_successful(guess.result), final.result, guess.result
+        diffrax.is_successful(final.result), last.result, final.result
     )
+    result = diffrax.RESULTS.where(diffrax.is_successful(guess.result), result, guess.result)
     return Beats(
-        ts, final.observed, final.y0, final.y_end, guess.beats + final.beats, final.residual,
-        drift, result, final.num_steps, root.stats["num_steps"],
+        ts, last.observed, last.y0, final.y_end, guess.beats + final.beats, final.residual,
+        drift, result, last.num_steps, root.stats["num_steps"],
+    )
+
+
+def orbit_beat(
+    field,
+    y_start,
+    period,
+    ts,
+    *,
+    jump_ts,
+    total_volume,
+    v_ref,
+    closed: bool,
+    config: SolverConfig | None = None,
+    observe: Callable[[jax.Array, dict], Any] | None = None,
+) -> Beats:
+    """One beat from ``y_start``, a point of the periodic orbit, differentiated as the orbit.
+
+    The value is the beat from ``y_start`` sampled at ``ts`` (its last entry the period): what
+    ``observe`` sees, its end, its cycle-to-cycle change ``residual`` (how far ``y_start`` is
+    from the orbit: compare it with the steady tolerance). The derivative is not that of one beat
+    from a fixed start: ``y_start``'s own derivative is ignored, and the start moves with the
+    parameters as the orbit does, ``-(dPhi/du - I)^-1 dPhi/dtheta`` in the unknowns ``u`` of
+    :func:`shoot_periodic`, evaluated at ``y_start`` (implicit function theorem). Nothing of it
+    is computed without differentiation.
+
+    ``v_ref`` is the total fluid volume (m^3) the orbit holds: that of the state the beats
+    started from (it depends on the parameters: the pump's rest volume, the column's head).
+    ``closed`` and the other arguments are those of :func:`shoot_periodic`.
+
+    Where ``dPhi/du - I`` is singular or not finite (no isolated orbit there), the observed
+    derivatives are NaN; the state's derivatives are zero, so that no NaN reaches a stiff
+    solver's linear solve (whose derivative checks raise).
+    """
+    config = preset("default") if config is None else config
+    y_fixed = _frozen(y_start)
+    unknowns = _Unknowns(y_fixed, closed, total_volume)
+    live = (field, period, jump_ts, v_ref)
+
+    def beat_map(u, live):
+        field, period, jump_ts, v_ref = live
+        return unknowns.of(_beat_end(field, period, unknowns.state(u, v_ref), jump_ts, config)) - u
+
+    u = unknowns.of(y_fixed)
+    u, poison = _on_orbit(u, live, eqx.filter_closure_convert(beat_map, u, live))
+    y = unknowns.state(u, v_ref)
+    # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
+    sampled = _one_beat(field, period, y, jnp.clip(ts / period, 0.0, 1.0), jump_ts, config)
+    observed = sampled.ys if observe is None else observe(ts, sampled.ys)
+    observed = jax.tree_util.tree_map(lambda a: a + poison.astype(a.dtype), observed)  # +0
+    y_end = jax.tree_util.tree_map(lambda a: a[-1], sampled.ys)
+    drift = jnp.abs(total_volume(y_end) - v_ref) / jnp.abs(v_ref)
+    result = _finite_or_failed(sampled.ys, sampled.result)
+    return Beats(
+        ts, observed, y, y_end, jnp.array(1), _cycle_residual(y, y_end), drift, result,
+        sampled.stats["num_steps"], jnp.array(0),
+    )
+
+
+@eqx.filter_custom_jvp
+def _on_orbit(u, live, beat_map):
+    """``(u, 0)``; differentiated, ``u`` moves as the root of ``beat_map(., live)`` through it,
+    and the 0 is NaN where that root's derivative is not finite (:func:`orbit_beat`)."""
+    del live, beat_map
+    return u, jnp.zeros((), u.dtype)
+
+
+@_on_orbit.def_jvp
+def _on_orbit_jvp(primals, tangents):
+    u, live, beat_map = primals
+    _, t_live, _ = tangents  # u's own tangent is ignored; beat_map closes over frozen values
+    out = _on_orbit(u, live, beat_map)
+    unperturbed = jax.tree_util.tree_map(lambda t: t is None, t_live, is_leaf=_is_none)
+    if all(jax.tree_util.tree_leaves(unperturbed)):
+        return out, (None, None)
+    fixed, diff = eqx.partition(live, unperturbed, is_leaf=_is_none)
+    n = u.shape[0]
+
+    def along(a):  # u moved by a[:n], the inputs by a[n] along their tangent
+        moved = jax.tree_util.tree_map(lambda x, t: x + a[n] * t, diff, t_live)
+        return beat_map(u + a[:n], eqx.combine(moved, fixed))
+
+    # dG/du and dG/dinputs . t_inputs as the columns of one Jacobian: one batched solve
+    jac = jax.jacfwd(along)(jnp.zeros(n + 1, u.dtype))
+    t_u = -jnp.linalg.solve(jac[:, :n], jac[:, n])
+    finite = jnp.all(jnp.isfinite(t_u))
+    return out, (jnp.where(finite, t_u, 0.0), jnp.where(finite, 0.0, jnp.nan))
+
+
+def _is_none(x) -> bool:
+    return x is None
+
+
+class _Unknowns:
+    """The unknowns of the one-beat map: the periodic states of a template state ``y`` divided
+    by their scales (:data:`PERIODIC_SCALES`), and back (:func:`shoot_periodic`, step 2)."""
+
+    def __init__(self, y: dict, closed: bool, total_volume):
+        flat, self.treedef = jax.tree_util.tree_flatten_with_path(y)
+        names = [path[-1].key for path, _ in flat]
+        self.unknown = [
+            i for i, name in enumerate(names)
+            if name in PERIODIC_SCALES and not (closed and name == "volume")
+        ]
+        self.scales = jnp.asarray([PERIODIC_SCALES[names[i]] for i in self.unknown])
+        self.template = [leaf for _, leaf in flat]
+        self.closed, self.total_volume = closed, total_volume
+        # the accumulator re-based in an open circuit (total_volume is affine in it, slope +-1)
+        self.rebase = (
+            None if closed else next((i for i, n in enumerate(names) if n in ACCUMULATORS), None)
+        )
+
+    def of(self, y: dict) -> jax.Array:
+        leaves = jax.tree_util.tree_leaves(y)
+        return jnp.stack([leaves[i] for i in self.unknown]) / self.scales
+
+    def state(self, u: jax.Array, v_ref) -> dict:
+        """The state of unknowns ``u`` holding the total volume ``v_ref`` (m^3)."""
+        leaves = list(self.template)
+        for k, i in enumerate(self.unknown):
+            leaves[i] = u[k] * self.scales[k]
+        y = jax.tree_util.tree_unflatten(self.treedef, leaves)
+        if self.closed:
+            others = self.total_volume({**y, "volume": jnp.zeros_like(y["volume"])})
+            return {**y, "volume": v_ref - others}
+        if self.rebase is None:
+            return y
+
+        def with_leaf(a):
+            return jax.tree_util.tree_unflatten(
+                self.treedef, [*leaves[: self.rebase], a, *leaves[self.rebase + 1 :]]
+            )
+
+        acc = leaves[self.rebase]
+        total, slope = jax.jvp(
+            lambda a: self.total_volume(with_leaf(a)), (acc,), (jnp.ones_like(acc),)
+        )
+        return with_leaf(acc + (v_ref - total) / slope)
+
+
+def _beat_end(field, period, y, jump_ts, config):
+    """The state one beat after ``y``."""
+    sol = _one_beat(field, period, y, None, jump_ts, config)
+    return jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
+
+
+def _frozen(tree):
+    """``tree`` with its arrays cut from differentiation (``lax.stop_gradient``)."""
+    return jax.tree_util.tree_map(
+        lambda a: jax.lax.stop_gradient(a) if eqx.is_array(a) else a, tree
     )

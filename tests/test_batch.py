@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cardiosoft.batch import BeatSolution, default_config, solve_beats, solve_static
+from cardiosoft.batch import BeatSolution, default_config, solve_beats, solve_orbit, solve_static
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import load
 from cardiosoft.scene import load_scene
@@ -245,13 +245,14 @@ def test_shooting_derivative_is_that_of_the_orbit(scene):
 
 
 def test_shooting_derivative_with_equal_steps_matches_central_differences(scene):
-    """The orbit's implicit derivative (optimistix's, through the Newton root:
-    cardiosoft.solve.shoot_periodic) against central differences of converged orbits, in CI. 400
-    equal steps per beat, so that both sides of a difference see the same discretisation (as in
-    the jacfwd test above). Measured 2026-12-02 (3 Newton steps, cycle change 2e-13 ml): the
-    largest relative difference over SV, peak force, work and efficiency fell with the step as
-    its square, the quotient's truncation error: 2.4e-5 at 1e-3, 2.6e-7 at 1e-4, 4e-9 at 1e-5
-    (relative steps). Held at 1e-5 for 1e-4."""
+    """The orbit's implicit derivative (cardiosoft.solve.orbit_beat), through the shooting solve
+    and through solve_orbit from the orbit's start (the design search's way), against central
+    differences of converged orbits, in CI. 400 equal steps per beat, so that both sides of a
+    difference see the same discretisation (as in the jacfwd test above). Measured 2026-12-02
+    (3 Newton steps, cycle change 2e-13 ml): the largest relative difference over SV, peak
+    force, work and efficiency fell with the step as its square, the quotient's truncation
+    error: 2.4e-5 at 1e-3, 2.6e-7 at 1e-4, 4e-9 at 1e-5 (relative steps). Held at 1e-5 for
+    1e-4."""
     config = SolverConfig(diffrax.Tsit5(), fixed_steps=400, adjoint=diffrax.ForwardMode())
     head = 60 * mmHg
 
@@ -267,15 +268,85 @@ def test_shooting_derivative_with_equal_steps_matches_central_differences(scene)
     design = np.array([4.0, 0.4])
     jac, (_, steady, newton) = jac_and_values(jnp.asarray(design))
     assert bool(steady) and int(newton) > 0
+    start = solve_beats(
+        scene, omega=4.0, shortening=0.4, afterload=head, save="metrics", steady="shooting",
+        config=config,
+    ).y0
+
+    def orbit_metrics(design):
+        out = solve_orbit(
+            scene, start, omega=design[0], shortening=design[1], afterload=head,
+            save="metrics", config=config,
+        )
+        return jnp.stack([getattr(out.metrics, m)[0] for m in METRICS])
+
+    jac_orbit = jax.jit(jax.jacfwd(orbit_metrics))(jnp.asarray(design))
     step = 1e-4 * design
     for k in range(2):
         moved = (design + s * step[k] * np.eye(2)[k] for s in (1, -1))
         shifted = [jac_and_values(jnp.asarray(d))[1] for d in moved]
         assert all(bool(s) for _, s, _ in shifted)
         central = (np.asarray(shifted[0][0]) - np.asarray(shifted[1][0])) / (2 * step[k])
-        np.testing.assert_allclose(
-            np.asarray(jac[:, k]), central, rtol=1e-5, err_msg=f"d/d{'Omega C'.split()[k]}"
-        )
+        for way, j in (("shooting", jac), ("solve_orbit", jac_orbit)):
+            np.testing.assert_allclose(
+                np.asarray(j[:, k]), central, rtol=1e-5, err_msg=f"{way} d/d{'OC'[k]}"
+            )
+
+
+def test_shooting_derivative_where_newton_fails_is_that_of_the_orbit(scene):
+    """Where Newton shooting fails (8 iterations; the ringing bench at 60 bpm, 90 mmHg, Omega
+    4.875, C 0.25, found by the design notebook's Pareto front) the beats after it are the
+    fallback, and the derivative is the implicit one at their last beat (within their residual
+    of the orbit). Against central differences of orbits converged beat after beat to 1e-7:
+    175.3 ml per unit C against 175.7 (measured 2026-12-02, relative step 4e-4; the quotient
+    still moves by 1 % between steps 1e-3 and 1e-4 here). Taken at Newton's last guess instead,
+    it was -663; through optimistix's root (before #13's split), 174.0."""
+    kw = dict(omega=4.875, bpm=60.0, afterload=90 * mmHg, save="metrics")
+
+    @jax.jit
+    def sv_tangent_newton(c):
+        def sv(c):
+            out = solve_beats(scene, shortening=c, steady="shooting", **kw)
+            return out.metrics.stroke_volume[0], out.newton_steps[0]
+
+        _, tangent, newton = jax.jvp(sv, (c,), (jnp.ones_like(c),), has_aux=True)
+        return tangent, newton
+
+    tangent, newton = sv_tangent_newton(jnp.asarray(0.25))
+    assert int(newton) == 8  # Newton's limit: the fallback is what this test is about
+    h = 1e-4
+    tight = scene.replace(steady_tol=1e-7, max_beats=400)
+    out = solve_beats(tight, shortening=jnp.asarray([0.25 - h, 0.25 + h]), steady="beats", **kw)
+    assert bool(jnp.all(out.steady))
+    central = float(out.metrics.stroke_volume[1] - out.metrics.stroke_volume[0]) / (2 * h)
+    assert float(tangent) / ml == pytest.approx(central / ml, rel=0.01)
+
+
+def test_solve_orbit_starts_where_told_and_says_whether_it_was_the_orbit(scene):
+    """From a steady solve's y0 the beat is that solve's last beat (same metrics, steady); from
+    rest it is the first beat (not steady); a start that is not finite begins at rest, and bad
+    starts are refused with the parameter named."""
+    kw = dict(omega=[3.0, 4.0], afterload=60 * mmHg, save="metrics")
+    steady = solve_beats(scene, steady="shooting", **kw)
+    again = solve_orbit(scene, steady.y0, **kw)
+    assert bool(jnp.all(again.steady)) and bool(jnp.all(again.succeeded))
+    np.testing.assert_allclose(again.metrics.stroke_volume, steady.metrics.stroke_volume, rtol=1e-9)
+    assert np.asarray(again.beats).tolist() == [1, 1]
+    first = solve_beats(scene, beats=1, **kw)  # its y0: the state at rest
+    from_rest = solve_orbit(scene, first.y0, **kw)
+    assert not bool(jnp.any(from_rest.steady))
+    sv = first.metrics.stroke_volume
+    np.testing.assert_allclose(from_rest.metrics.stroke_volume, sv, rtol=1e-9)
+    broken = {**steady.y0, "volume": steady.y0["volume"].at[1].set(jnp.nan)}
+    out = solve_orbit(scene, broken, **kw)
+    assert bool(out.steady[0]) and not bool(out.steady[1])
+    assert bool(jnp.all(jnp.isfinite(out.metrics.stroke_volume)))
+    with pytest.raises(ValueError, match="start: a dict"):
+        solve_orbit(scene, steady.y0["volume"], **kw)
+    with pytest.raises(ValueError, match="start: states"):
+        solve_orbit(scene, {"volume": steady.y0["volume"]}, **kw)
+    with pytest.raises(ValueError, match="start: 2 members"):
+        solve_orbit(scene, steady.y0, omega=[3.0, 4.0, 5.0], afterload=60 * mmHg)
 
 
 def test_every_rate_samples_its_beat_end(scene):
