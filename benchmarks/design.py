@@ -9,11 +9,13 @@ prints, without asserting anything about time:
 1. the wall time of fresh ``python -m cardiosoft.design --target-sv 70 --afterload 90 --bpm 60``
    processes (the researcher's question: 70 ml at 60 bpm against 90 mmHg), and where it went,
    from the ``timings`` of the ``design.json`` they write: start-up and imports, tracing and
-   compiling the search's one function, the grid, the refinement rounds, the verifying
+   compiling the search's two programs (the orbits, then their implicit derivatives; they
+   compile at once on two threads), the grid, the refinement rounds, the verifying
    ``run()`` (compiled meanwhile on a second thread from the start design); the CPU time of
    the process (both threads). Each run with a cold compile cache (an empty folder), then
    again with the warm one it filled (cardiosoft._cli), and the warm / cold ratio; then one
-   with ``--steady beats`` (beat after beat instead of Newton shooting: a lighter compile);
+   with ``--steady beats`` (orbits beat after beat instead of by Newton shooting: a lighter
+   compile);
 2. in one process, through the Python API (XLA's default settings, or the caller's
    ``XLA_FLAGS``): the first target (compile included), then further targets of the same shape
    (compiled), each with its split;
@@ -45,7 +47,7 @@ SPLIT = ("trace_s", "compile_s", "grid_s", "refine_s", "prewarm_wait_s", "verify
 
 
 def _split(timings: dict) -> str:
-    calls = f"{timings['calls']} calls of the compiled function"
+    calls = f"{timings['calls']} calls of the compiled search"
     return ", ".join(f"{k[:-2]} {timings[k]:.2f}" for k in SPLIT) + (
         f"; {calls}, median {timings['call_median_s']:.3f}"
     )

@@ -39,8 +39,8 @@ over the targets).
    learning rate; a Gauss-Newton step on the residuals (the pseudo-inverse of their Jacobian,
    a least-squares step in ml) is added; the sum is clipped to a trust radius. A step is kept
    if it improves (the residual, or the objective within the targets), else it is undone and
-   the radius shrinks. Every round is one call of one compiled function of a fixed batch, so a
-   problem compiles one function (per number of targets and free variables) and a further
+   the radius shrinks. Every round is one call of the same compiled programs on a fixed
+   batch, so a problem compiles once (per number of targets and free variables) and a further
    target with the same shape reuses it.
 4. It stops when a candidate is within half the tolerance (default :data:`TOLERANCE_ML`,
    0.5 ml), or, with a secondary objective, when the objective stops improving; or when
@@ -51,18 +51,22 @@ over the targets).
    gives ``reached=False``, the closest design found and the range of stroke volumes seen at
    that target over every design evaluated (:attr:`TargetResult.reachable_sv_ml`).
 
-**Derivatives.** By default the search solves with ``steady="shooting"`` of
-:func:`cardiosoft.solve_beats`: the periodic orbit is found by Newton shooting on the one-beat
-map and differentiated implicitly, so the gradient is that of the periodic steady state, not of
-the beats from rest that led there. Measured at Omega 4, C 0.4, 60 bpm, the search's
-d SV / d C and d SV / d Omega agree with central differences (steps 1e-3 in C, 1e-2 in Omega)
-of runs converged beat after beat to 1e-5 ml within 0.3 % at 30 mmHg and 0.02 % at 60 and
-90 mmHg (``tests/test_design.py`` holds them to 1 %). Its price is the compile: shooting puts
-the guess, the Newton Jacobians and the implicit derivative into the compiled function, about
-three times the compile of ``steady="beats"`` (whose derivative, of the beats from rest, is
-within about 0.5 % of the steady state's: :mod:`cardiosoft.batch`). The search solves at the
-scene's accuracy preset, as the verifying run does (``accuracy="fast"`` is faster; its stroke
-volumes differ from the run's by up to 0.3 ml in the stiff Windkessel scenes).
+**Derivatives.** Each evaluation is two compiled programs: the periodic orbits of the
+candidates, without derivatives (``steady="shooting"``, the default: Newton shooting on the
+one-beat map, :func:`cardiosoft.solve_beats`; or ``"beats"``, beat after beat from rest), then
+one beat from each orbit's start by :func:`cardiosoft.solve_orbit`, whose derivative is the
+periodic steady state's by the implicit function theorem, not that of the beats from rest that
+led there. Measured at Omega 4, C 0.4, 60 bpm, the search's d SV / d C and d SV / d Omega agree
+with central differences (steps 1e-3 in C, 1e-2 in Omega) of runs converged beat after beat to
+1e-5 ml within 0.3 % at 30 mmHg and 0.02 % at 60 and 90 mmHg (``tests/test_design.py`` holds
+them to 1 %). The split is for the compile: each program is about half the size of the shooting
+solve differentiated whole, and the two compile at once on two threads while the verifying
+run's is traced (#13: a fresh process 27 s instead of 30-33 s, ``benchmarks/design.py``).
+Shooting finds orbits where beats ring for longer than the scene's ``max_beats`` (the bench at
+60 bpm: 32 of 32 grid candidates steady against 24 beat after beat); ``"beats"`` compiles in
+about two thirds of the time. The search solves at the scene's accuracy preset, as the
+verifying run does (``accuracy="fast"`` is faster; its stroke volumes differ from the run's by
+up to 0.3 ml in the stiff Windkessel scenes).
 
 ``pareto=True`` also traces the designs that hit the targets across Omega (C solved for at
 each of :data:`REFINE` Omegas) and reports which of them trade peak force against efficiency
@@ -72,6 +76,7 @@ each of :data:`REFINE` Omegas) and reports which of them trade peak force agains
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import dataclasses
 import functools
 import json
@@ -89,7 +94,13 @@ import numpy as np
 import optax
 
 from cardiosoft._validate import check_range
-from cardiosoft.batch import STEADY_METHODS, default_config, solve_beats, split_scene
+from cardiosoft.batch import (
+    STEADY_METHODS,
+    default_config,
+    solve_beats,
+    solve_orbit,
+    split_scene,
+)
 from cardiosoft.experiment import run
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.results import RunResult
@@ -134,7 +145,7 @@ TOLERANCE_ML = 0.5
 GRID = 32
 """Candidates of the coarse grid (a multiple of :data:`REFINE`)."""
 REFINE = 8
-"""Candidates refined together: the batch of the one compiled function."""
+"""Candidates refined together: the batch of the compiled search."""
 MAX_ROUNDS = 40
 """Refinement rounds at most (each one compiled call)."""
 DEFAULT_STEADY = "shooting"
@@ -232,8 +243,8 @@ class DesignResult:
       (mean over the targets, from the run), or None.
     - ``iterations``: refinement rounds; ``seconds``: wall time of :func:`optimise`;
       ``timings``: where it went, in s: ``trace_s`` and ``compile_s`` (tracing, and tracing
-      plus XLA's compilation, of the search's one function; 0 when this process had compiled
-      it already), ``grid_s``, ``refine_s``, ``verify_s`` (the final run()), ``prewarm_s``
+      plus XLA's compilation, of the search's two programs; 0 when this process had compiled
+      them already), ``grid_s``, ``refine_s``, ``verify_s`` (the final run()), ``prewarm_s``
       (the run() of the start design on a second thread, which compiles the verification
       meanwhile), ``prewarm_wait_s`` (how long the verification waited for
       it), ``pareto_s``, ``map_s``, ``total_s``; ``calls`` and ``call_median_s`` of the
@@ -543,39 +554,26 @@ def _problem(
 # ------------------------------------------------------------------------------- the search
 
 
-def _evaluate(z, base, heads, rates, numbers, pump, config, *, structure, space, steady):
-    """Metrics (R, K, 5) of candidates ``z`` (R, d) at the K targets, their derivatives with
-    respect to z (R, K, 5, d), and (ok (R, K), beats (R, K)).
-
-    One forward-mode pass over one batch: each candidate is repeated once per free variable
-    (and per target), every copy moved along its own variable by the same tangent, so a
-    single ``jax.jvp`` of one vmapped solve gives every column of every Jacobian. That costs
-    d primal solves per candidate instead of one, and saves a vmap over the tangents, which
-    would batch every while loop of the solve once more: measured, the trace and the compile
-    take about half as long.
-    """
-    n, d = z.shape
-    k = rates.shape[0]
-    size = n * d * k
-    candidate = jnp.repeat(jnp.arange(n), d * k)
-    direction = jnp.tile(jnp.repeat(jnp.arange(d), k), n)
-    target = jnp.tile(jnp.arange(k), n * d)
-    z_m = z[candidate]
-    unit = jnp.eye(d, dtype=z.dtype)[direction]
+def _member_solve(structure, numbers, pump, config, space, steady):
+    """``solve(x, bpm, head, start) -> (metrics (m, 5), (ok (m,), beats (m,), y0))`` of m
+    members: design values ``x``, rates, heads (None for a Windkessel) and, with
+    ``steady="orbit"``, orbit starts (:func:`cardiosoft.batch.solve_orbit`)."""
     fractions_free = any(f in space.names for f in FRACTIONS)
 
-    def solve(scene, x, bpm, head):
-        out = solve_beats(
-            scene,
+    def solve(scene, x, bpm, head, start):
+        common = dict(
             omega=x["omega"],
             shortening=x["shortening"],
             bpm=bpm,
             afterload=head,
             save="metrics",
-            steady=steady,
             pump=pump,
             config=config,
         )
+        if steady == "orbit":
+            out = solve_orbit(scene, start, **common)
+        else:
+            out = solve_beats(scene, steady=steady, **common)
         m = out.metrics
         values = jnp.stack(
             [
@@ -588,41 +586,97 @@ def _evaluate(z, base, heads, rates, numbers, pump, config, *, structure, space,
             axis=-1,
         )
         ok = out.succeeded & out.steady & jnp.all(jnp.isfinite(values), axis=-1)
-        return values, (ok, out.beats)
+        return values, (ok, out.beats, out.y0)
 
-    def members(t):
-        x = space.values(z_m + t[:, None] * unit, base)
-        bpm = x["bpm"] if "bpm" in space.names else rates[target]
-        head = None if heads is None else heads[target]
+    def members(x, bpm, head, start):
         if not fractions_free:  # every member field of the batch solve: one batch
-            return solve(dataclasses.replace(structure, **numbers), x, bpm, head)
+            return solve(dataclasses.replace(structure, **numbers), x, bpm, head, start)
 
         # the fractions are scene numbers, shared by a batch: a batch of one per member
-        def one(x_m, bpm_m, head_m):
+        def one(x_m, bpm_m, head_m, start_m):
             scene = dataclasses.replace(structure, **(numbers | {f: x_m[f] for f in FRACTIONS}))
             one_head = None if head_m is None else head_m[None]
-            values, (ok, beats) = solve(scene, x_m, bpm_m[None], one_head)
-            return values[0], (ok[0], beats[0])
+            one_start = jax.tree_util.tree_map(lambda a: a[None], start_m)
+            out = solve(scene, x_m, bpm_m[None], one_head, one_start)
+            return jax.tree_util.tree_map(lambda a: a[0], out)
 
+        size = next(iter(x.values())).shape[0]
         x = {name: jnp.broadcast_to(v, (size,)) for name, v in x.items()}
-        return jax.vmap(one)(x, jnp.broadcast_to(bpm, (size,)), head)
+        return jax.vmap(one)(x, jnp.broadcast_to(bpm, (size,)), head, start)
 
-    zero = jnp.zeros(size, z.dtype)
-    values, tangents, (ok, beats) = jax.jvp(members, (zero,), (jnp.ones_like(zero),), has_aux=True)
+    return members
+
+
+def _member_inputs(z, base, heads, rates, space, target):
+    x = space.values(z, base)
+    bpm = x["bpm"] if "bpm" in space.names else rates[target]
+    return x, bpm, None if heads is None else heads[target]
+
+
+def _evaluate(z, base, heads, rates, numbers, pump, config, starts, *, structure, space):
+    """Metrics (R, K, 5) of candidates ``z`` (R, d) at the K targets, their derivatives with
+    respect to z (R, K, 5, d), and ok (R, K): one beat from ``starts``, the orbit starts of
+    the R x K members (:func:`_orbits`), differentiated as the orbits
+    (:func:`cardiosoft.solve_orbit`).
+
+    One forward-mode pass over one batch: each candidate is repeated once per free variable
+    (and per target), every copy moved along its own variable by the same tangent, so a
+    single ``jax.jvp`` of one vmapped solve gives every column of every Jacobian. That costs
+    d primal solves per candidate instead of one, and saves a vmap over the tangents, which
+    would batch every while loop of the solve once more: measured, the trace and the compile
+    take about half as long.
+    """
+    n, d = z.shape
+    k = rates.shape[0]
+    candidate = jnp.repeat(jnp.arange(n), d * k)
+    direction = jnp.tile(jnp.repeat(jnp.arange(d), k), n)
+    target = jnp.tile(jnp.arange(k), n * d)
+    z_m = z[candidate]
+    unit = jnp.eye(d, dtype=z.dtype)[direction]
+    solve = _member_solve(structure, numbers, pump, config, space, "orbit")
+    start = jax.tree_util.tree_map(lambda a: a[candidate * k + target], starts)
+
+    def members(t):
+        values, (ok, _, _) = solve(
+            *_member_inputs(z_m + t[:, None] * unit, base, heads, rates, space, target), start
+        )
+        return values, ok
+
+    zero = jnp.zeros(n * d * k, z.dtype)
+    values, tangents, ok = jax.jvp(members, (zero,), (jnp.ones_like(zero),), has_aux=True)
+    ok = ok & jnp.all(jnp.isfinite(tangents), axis=-1)
     values = values.reshape(n, d, k, -1)[:, 0]
     jac = jnp.moveaxis(tangents.reshape(n, d, k, -1), 1, -1)
-    ok = ok.reshape(n, d, k).all(axis=1)
-    return values, jac, (ok, beats.reshape(n, d, k)[:, 0])
+    return values, jac, ok.reshape(n, d, k).all(axis=1)
 
 
-_EVALUATE = functools.partial(jax.jit, static_argnames=("structure", "space", "steady"))(_evaluate)
+def _orbits(z, base, heads, rates, numbers, pump, config, *, structure, space, steady):
+    """(ok (R x K,), beats, y0) of the R x K members of candidates ``z`` (R, d) at the K
+    targets: their periodic orbits (``steady``: "shooting" or "beats"), without derivatives
+    (:func:`_evaluate` differentiates them)."""
+    n, k = z.shape[0], rates.shape[0]
+    candidate, target = jnp.repeat(jnp.arange(n), k), jnp.tile(jnp.arange(k), n)
+    solve = _member_solve(structure, numbers, pump, config, space, steady)
+    _, (ok, beats, y0) = solve(
+        *_member_inputs(z[candidate], base, heads, rates, space, target), None
+    )
+    return ok, beats, y0
+
+
+_EVALUATE = functools.partial(jax.jit, static_argnames=("structure", "space"))(_evaluate)
+_ORBITS = functools.partial(jax.jit, static_argnames=("structure", "space", "steady"))(_orbits)
 
 
 class _Evaluator:
-    """The search's one compiled function for a problem's shape, and its timings."""
+    """The search's compiled programs for a problem's shape, and their timings.
+
+    A call is two programs: the orbits without derivatives (:func:`_orbits`), then their
+    implicit derivatives at those orbits (:func:`_evaluate`). Each is about half the size of
+    the shooting solve differentiated whole, and they compile at once, on two threads: XLA
+    compiles without Python's lock, so the second is traced while the first compiles (#13)."""
 
     _compiled: ClassVar[dict] = {}  # shared by every search of the process: no recompile
-    _lowered: ClassVar[dict] = {}  # traced, not yet compiled
+    _pending: ClassVar[dict] = {}  # traced, compiling on a thread
 
     def __init__(self, problem: _Problem, pump, accuracy: str | None, steady: str):
         scene = problem.scene
@@ -637,7 +691,7 @@ class _Evaluator:
         self.heads = None if heads is None else jnp.asarray(heads, ftype) * mmHg
         rates = [problem.base["bpm"] if t.bpm is None else t.bpm for t in problem.targets]
         self.rates = jnp.asarray(rates, ftype)
-        self.compile_s = 0.0  # trace, lower and compile
+        self.compile_s = 0.0  # trace, lower and compile, until the programs are ready
         self.trace_s = 0.0  # trace and lower
         self.calls = 0
         self.call_s: list[float] = []
@@ -656,31 +710,41 @@ class _Evaluator:
         return args, key
 
     def trace(self, z: np.ndarray) -> None:
-        """Trace and lower for the shape of ``z`` now, compile at the first call. Tracing holds
-        Python's lock, XLA's compile does not: a second thread's tracing overlaps the latter."""
+        """Trace and lower for the shape of ``z`` now, each program then compiling on a thread
+        of its own while the next is traced (tracing holds Python's lock, XLA does not)."""
         args, key = self._args(z)
-        if key not in self._compiled and key not in self._lowered:
-            start = time.perf_counter()
-            static = dict(structure=self.structure, space=self.space, steady=self.steady)
-            self._lowered[key] = _EVALUATE.lower(*args, **static)
-            self.trace_s += time.perf_counter() - start
-            self.compile_s += time.perf_counter() - start
+        if key in self._compiled or key in self._pending:
+            return
+        start = time.perf_counter()
+        static = dict(structure=self.structure, space=self.space)
+        orbits = _ORBITS.lower(*args, **static, steady=self.steady)
+        compiling = [_COMPILER.submit(orbits.compile)]
+        starts = orbits.out_info[2]  # the shapes of the orbit starts
+        compiling.append(_COMPILER.submit(_EVALUATE.lower(*args, starts, **static).compile))
+        self._pending[key] = (start, compiling)
+        self.trace_s += time.perf_counter() - start
 
     def __call__(self, z: np.ndarray):
         """(values (R, K, 5), jac (R, K, 5, d), ok (R, K), beats (R, K)) as numpy."""
         self.trace(z)
         args, key = self._args(z)
+        if key not in self._compiled:
+            begin, compiling = self._pending.pop(key)
+            self._compiled[key] = [c.result() for c in compiling]
+            self.compile_s += time.perf_counter() - begin
         start = time.perf_counter()
-        compiled = self._compiled.get(key)
-        if compiled is None:
-            compiled = self._compiled[key] = self._lowered.pop(key).compile()
-            self.compile_s += time.perf_counter() - start
-            start = time.perf_counter()
-        values, jac, (ok, beats) = compiled(*args)
-        values, jac, ok = np.asarray(values), np.asarray(jac), np.asarray(ok)
+        orbits, derivative = self._compiled[key]
+        ok_orbit, beats, y0 = orbits(*args)
+        values, jac, ok = derivative(*args, y0)
+        ok = np.asarray(ok) & np.asarray(ok_orbit).reshape(ok.shape)
+        values, jac = np.asarray(values), np.asarray(jac)
         self.call_s.append(time.perf_counter() - start)
         self.calls += 1
-        return values, jac, ok, np.asarray(beats)
+        return values, jac, ok, np.asarray(beats).reshape(ok.shape)
+
+
+_COMPILER = concurrent.futures.ThreadPoolExecutor(max_workers=2, thread_name_prefix="compile")
+"""XLA compiles the search's two programs here, each on a thread of its own."""
 
 
 def _project_secondary() -> optax.GradientTransformationExtraArgs:
@@ -1601,8 +1665,9 @@ def _parser() -> argparse.ArgumentParser:
         "--steady",
         default=DEFAULT_STEADY,
         metavar="METHOD",
-        help="how the search reaches the periodic steady state: shooting (Newton on the one-beat "
-        "map, implicit derivatives; the default) or beats (beat after beat; compiles faster)",
+        help="how the search finds the periodic orbits it differentiates: shooting (Newton on "
+        "the one-beat map; the default) or beats (beat after beat; compiles faster, fails where "
+        "the beats ring past the scene's max_beats)",
     )
     p.add_argument("--out", metavar="DIR", help="write design.json and design.png there")
     p.add_argument("--no-plot", action="store_true", help="with --out: skip the figure")
@@ -1769,7 +1834,7 @@ def main(argv=None) -> int:
         return fail(err)
     plot = out_dir is not None and not args.no_plot
     say(
-        f"{scene.name}: {len(targets)} target(s); compiling the search (one function), then a "
+        f"{scene.name}: {len(targets)} target(s); compiling the search, then a "
         f"grid of {GRID} candidates and refinement rounds of {REFINE} ..."
     )
     try:
@@ -1801,7 +1866,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    # From a fresh process most of the time is compiling the search's one function and the
+    # From a fresh process most of the time is compiling the search's programs and the
     # verifying run(). XLA's optimisation level 0 (as simulate uses) compiles them in about a
     # third less CPU time than level 1; the compiled code runs about 3x slower (~0.15 s against
     # 0.05 s a call on the bench), which a search of a few to tens of calls hardly notices. An

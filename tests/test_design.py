@@ -330,10 +330,12 @@ def test_command_line_runs_without_the_runpy_warning(tmp_path):
 def test_design_json_agrees_with_an_independent_simulate_run(tmp_path):
     """``python -m cardiosoft.design --out`` then ``python -m cardiosoft.simulate`` of the
     design it names: the stroke volume written is the simulator's. Two fresh processes, each
-    compiling. The design search runs beat after beat (``--steady beats``), which compiles in
-    a third of the time of the default Newton shooting; the shooting search is tested in this
-    process above, and what is checked here (the file against the simulator) does not depend
-    on it."""
+    compiling. The design search finds its orbits beat after beat (``--steady beats``), which
+    compiles in about two thirds of the time of the default Newton shooting; the shooting
+    search is tested in this process above, and what is checked here (the file against the
+    simulator) does not depend on it. The design found (Omega 1.14, C 0.569) drives the pump to
+    151 mmHg, past the surrogate's fitted 150: both tools flag it, and simulate exits 1 for
+    it, as it must for a flagged result."""
     out = tmp_path / "design"
     result = finish(
         launch("--target-sv", 70, "--afterload", 90, "--bpm", 60, "--steady", "beats", "--out", out)
@@ -371,7 +373,7 @@ def test_design_json_agrees_with_an_independent_simulate_run(tmp_path):
         text=True,
         timeout=600,
     )
-    assert check.returncode == 0, check.stderr
+    assert check.returncode == (1 if target["flags"] else 0), check.stderr
     (simulated,) = json.loads((sim / "summary.json").read_text())["records"]
     assert simulated["dynamic_sv_ml"] == pytest.approx(target["sv_ml"], abs=1e-6)
     assert simulated["peak_force_N"] == pytest.approx(target["peak_force_N"], abs=1e-6)
