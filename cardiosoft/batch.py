@@ -29,7 +29,9 @@ afterload, rate or tolerance does not recompile; a new batch size, effect or sav
 once more from its start, sampled at :data:`SAMPLES_PER_BEAT` times, and its
 :class:`~cardiosoft.metrics.BeatMetrics` computed from the samples. ``save="traces"`` returns
 those samples too (the CLI's traces, the figures, the notebooks); ``save="metrics"`` returns
-the metrics only, nothing of the beat's length (the optimiser, the sweeps).
+the metrics only, nothing of the beat's length (the optimiser, the sweeps); ``save="state"``
+integrates no sampled beat and returns neither, only the periodic state reached (``y0``) and
+whether it can be trusted (to start :func:`solve_orbit` from).
 
 **Derivatives.** The beat loop is a ``while_loop`` whose number of beats depends on the data,
 so the solve is differentiable in forward mode: ``jax.jvp`` and ``jax.jacfwd`` of any metric with
@@ -91,7 +93,7 @@ PULL_SAMPLES = 201
 """Samples of the pull phase; the force curve, peak force and mechanical work use them."""
 SAMPLES_PER_BEAT = PULL_SAMPLES + 200
 """Samples of one beat: the pull phase (its end on the grid), then 200 over the rest."""
-SAVE_MODES = ("traces", "metrics")
+SAVE_MODES = ("traces", "metrics", "state")
 STEADY_METHODS = ("beats", "shooting")
 """How the periodic steady state is reached: beat after beat, or by Newton shooting."""
 GUESS_BEATS = 3
@@ -172,10 +174,11 @@ class BeatSolution(eqx.Module):
 
     - ``members``: the member values, ``{"omega", "shortening", "bpm", "afterload"}`` (the
       afterload, a column head in Pa, is NaN for a Windkessel scene).
-    - ``metrics``: the last beat's :class:`~cardiosoft.metrics.BeatMetrics`.
+    - ``metrics``: the last beat's :class:`~cardiosoft.metrics.BeatMetrics` (None with
+      ``save="state"``).
     - ``traces``: with ``save="traces"``, the last beat: ``time`` (s, from 0 to the period),
       ``volume`` and the other states, and every signal of :meth:`PumpCircuit.signals`;
-      ``None`` with ``save="metrics"``.
+      ``None`` with ``save="metrics"`` or ``"state"``.
     - ``y0``: the state at the start of the last beat (SI, a dict by the state's names): on a
       steady member a point of its periodic orbit, where :func:`solve_orbit` starts.
     - ``beats``: beats integrated; ``residual``: the cycle-to-cycle change of the last beat
@@ -187,7 +190,7 @@ class BeatSolution(eqx.Module):
     """
 
     members: dict
-    metrics: BeatMetrics
+    metrics: BeatMetrics | None
     traces: dict | None
     y0: dict
     beats: jax.Array
@@ -338,7 +341,7 @@ def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save,
         values = {k: v for k, v in member.items() if k not in ("afterload", "start")}
         scene = dataclasses.replace(structure, **(numbers | values))
         circuit = scene_circuit(scene, pump, member["afterload"], energy=energy)
-        ts = _save_times(circuit.actuation)
+        ts = None if save == "state" else _save_times(circuit.actuation)
         observe = None if save == "traces" else (lambda ts, ys: _metrics(circuit, ts, ys)[1])
         common = dict(
             jump_ts=circuit.actuation.kink_times(1),
@@ -373,7 +376,7 @@ def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save,
         if save == "traces":
             signals, metrics = _metrics(circuit, ts, out.observed)
             traces = {"time": ts, **_flat_states(out.observed), **signals}
-        else:
+        else:  # the metrics, or None without a sampled beat
             metrics, traces = out.observed, None
         return metrics, traces, out
 
@@ -411,7 +414,7 @@ def solve_beats(
       to one batch axis; ``None`` keeps the scene's value(s).
     - ``beats``: run exactly this many beats, in [1, 500] (default: until steady, at most the
       scene's ``max_beats``).
-    - ``save``: ``"traces"`` or ``"metrics"`` (:data:`SAVE_MODES`).
+    - ``save``: ``"traces"``, ``"metrics"`` or ``"state"`` (:data:`SAVE_MODES`).
     - ``steady``: ``"beats"``, beat after beat from rest until the cycle-to-cycle change is
       below the scene's ``steady_tol``; or ``"shooting"``, :data:`GUESS_BEATS` beats, then
       Newton's method on the one-beat map (:func:`cardiosoft.solve.shoot_periodic`), whose
@@ -480,8 +483,8 @@ def solve_orbit(
     scene = scene if isinstance(scene, Scene) else load_scene(scene)
     if scene.static:
         raise ValueError(f"scene {scene.name} is static: it has no orbit")
-    if save not in SAVE_MODES:
-        raise ValueError(f"save = {save!r}: allowed {', '.join(SAVE_MODES)}")
+    if save not in ("traces", "metrics"):
+        raise ValueError(f"save = {save!r}: allowed traces, metrics")
     pump = load() if pump is None else pump
     config = default_config(scene) if config is None else config
     members = _members(scene, omega, shortening, bpm, afterload)

@@ -557,7 +557,8 @@ def _problem(
 def _member_solve(structure, numbers, pump, config, space, steady):
     """``solve(x, bpm, head, start) -> (metrics (m, 5), (ok (m,), beats (m,), y0))`` of m
     members: design values ``x``, rates, heads (None for a Windkessel) and, with
-    ``steady="orbit"``, orbit starts (:func:`cardiosoft.batch.solve_orbit`)."""
+    ``steady="orbit"``, orbit starts (:func:`cardiosoft.batch.solve_orbit`). The orbits
+    themselves (``steady`` "shooting" or "beats") come without metrics (None)."""
     fractions_free = any(f in space.names for f in FRACTIONS)
 
     def solve(scene, x, bpm, head, start):
@@ -566,14 +567,13 @@ def _member_solve(structure, numbers, pump, config, space, steady):
             shortening=x["shortening"],
             bpm=bpm,
             afterload=head,
-            save="metrics",
             pump=pump,
             config=config,
         )
-        if steady == "orbit":
-            out = solve_orbit(scene, start, **common)
-        else:
-            out = solve_beats(scene, steady=steady, **common)
+        if steady != "orbit":  # no sampled beat: the orbit's start is all it is for
+            out = solve_beats(scene, steady=steady, save="state", **common)
+            return None, (out.succeeded & out.steady, out.beats, out.y0)
+        out = solve_orbit(scene, start, save="metrics", **common)
         m = out.metrics
         values = jnp.stack(
             [

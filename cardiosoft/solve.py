@@ -430,7 +430,8 @@ def shoot_periodic(
        :func:`periodic_beats` until the cycle-to-cycle change is below ``tol``, at most
        ``max_beats``: at a converged orbit that is two beats (the steady test); otherwise beat
        after beat is the fallback, and ``residual`` says how it ended. The last beat is then
-       integrated once more with its samples, by :func:`orbit_beat`.
+       integrated once more with its samples, by :func:`orbit_beat`; with ``ts`` None it is
+       not, and ``y0``, the orbit's start, is what carries the orbit's derivative.
 
     **Derivatives** (``jax.jvp``/``jacfwd`` of anything downstream) are the periodic orbit's,
     ``dy*/dtheta = -(dPhi/dy - I)^-1 dPhi/dtheta`` (implicit function theorem), taken at the
@@ -465,18 +466,28 @@ def shoot_periodic(
     final = periodic_beats(
         field_f, unknowns.state(start, v_ref_f), period_f, None, max_beats=max_beats, **beats
     )
+    drift = jnp.maximum(guess.volume_drift, final.volume_drift)
+    result = diffrax.RESULTS.where(diffrax.is_successful(guess.result), final.result, guess.result)
+    beats = guess.beats + final.beats
+    newton_steps = root.stats["num_steps"]
+    if ts is None:  # the orbit's start only, its derivative the orbit's
+        y_start, poison = _orbit_start(
+            field, final.y0, period, jump_ts, total_volume, v_ref, closed, config
+        )
+        y_start = jax.tree_util.tree_map(lambda a: a + poison.astype(a.dtype), y_start)
+        return Beats(
+            ts, None, y_start, final.y_end, beats, final.residual, drift, result, jnp.array(0),
+            newton_steps,
+        )
     last = orbit_beat(
         field, final.y0, period, ts, jump_ts=jump_ts, total_volume=total_volume, v_ref=v_ref,
         closed=closed, config=config, observe=observe,
     )
-    drift = jnp.maximum(jnp.maximum(guess.volume_drift, final.volume_drift), last.volume_drift)
-    result = diffrax.RESULTS.where(
-        diffrax.is_successful(final.result), last.result, final.result
-    )
-    result = diffrax.RESULTS.where(diffrax.is_successful(guess.result), result, guess.result)
     return Beats(
-        ts, last.observed, last.y0, final.y_end, guess.beats + final.beats, final.residual,
-        drift, result, last.num_steps, root.stats["num_steps"],
+        ts, last.observed, last.y0, final.y_end, beats, final.residual,
+        jnp.maximum(drift, last.volume_drift),
+        diffrax.RESULTS.where(diffrax.is_successful(result), last.result, result),
+        last.num_steps, newton_steps,
     )
 
 
@@ -512,17 +523,7 @@ def orbit_beat(
     solver's linear solve (whose derivative checks raise).
     """
     config = preset("default") if config is None else config
-    y_fixed = _frozen(y_start)
-    unknowns = _Unknowns(y_fixed, closed, total_volume)
-    live = (field, period, jump_ts, v_ref)
-
-    def beat_map(u, live):
-        field, period, jump_ts, v_ref = live
-        return unknowns.of(_beat_end(field, period, unknowns.state(u, v_ref), jump_ts, config)) - u
-
-    u = unknowns.of(y_fixed)
-    u, poison = _on_orbit(u, live, eqx.filter_closure_convert(beat_map, u, live))
-    y = unknowns.state(u, v_ref)
+    y, poison = _orbit_start(field, y_start, period, jump_ts, total_volume, v_ref, closed, config)
     # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
     sampled = _one_beat(field, period, y, jnp.clip(ts / period, 0.0, 1.0), jump_ts, config)
     observed = sampled.ys if observe is None else observe(ts, sampled.ys)
@@ -534,6 +535,21 @@ def orbit_beat(
         ts, observed, y, y_end, jnp.array(1), _cycle_residual(y, y_end), drift, result,
         sampled.stats["num_steps"], jnp.array(0),
     )
+
+
+def _orbit_start(field, y_start, period, jump_ts, total_volume, v_ref, closed, config):
+    """(``y_start`` differentiated as the orbit through it, 0 or NaN): :func:`orbit_beat`."""
+    y_fixed = _frozen(y_start)
+    unknowns = _Unknowns(y_fixed, closed, total_volume)
+    live = (field, period, jump_ts, v_ref)
+
+    def beat_map(u, live):
+        field, period, jump_ts, v_ref = live
+        return unknowns.of(_beat_end(field, period, unknowns.state(u, v_ref), jump_ts, config)) - u
+
+    u = unknowns.of(y_fixed)
+    u, poison = _on_orbit(u, live, eqx.filter_closure_convert(beat_map, u, live))
+    return unknowns.state(u, v_ref), poison
 
 
 @eqx.filter_custom_jvp

@@ -323,12 +323,18 @@ def test_shooting_derivative_where_newton_fails_is_that_of_the_orbit(scene):
 
 
 def test_solve_orbit_starts_where_told_and_says_whether_it_was_the_orbit(scene):
-    """From a steady solve's y0 the beat is that solve's last beat (same metrics, steady); from
-    rest it is the first beat (not steady); a start that is not finite begins at rest, and bad
+    """From a steady solve's y0 (``save="state"``: the orbit's start, no sampled beat) the beat
+    is that solve's last beat (same metrics, steady); from rest it is the first beat (not
+    steady); a start that is not finite begins at rest, and bad
     starts are refused with the parameter named."""
     kw = dict(omega=[3.0, 4.0], afterload=60 * mmHg, save="metrics")
     steady = solve_beats(scene, steady="shooting", **kw)
-    again = solve_orbit(scene, steady.y0, **kw)
+    state = solve_beats(scene, steady="shooting", **(kw | {"save": "state"}))
+    assert state.metrics is None and state.traces is None and bool(jnp.all(state.steady))
+    leaves = jax.tree_util.tree_leaves
+    for a, b in zip(leaves(state.y0), leaves(steady.y0), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12)  # the same orbit, without its samples
+    again = solve_orbit(scene, state.y0, **kw)
     assert bool(jnp.all(again.steady)) and bool(jnp.all(again.succeeded))
     np.testing.assert_allclose(again.metrics.stroke_volume, steady.metrics.stroke_volume, rtol=1e-9)
     assert np.asarray(again.beats).tolist() == [1, 1]
@@ -341,6 +347,8 @@ def test_solve_orbit_starts_where_told_and_says_whether_it_was_the_orbit(scene):
     out = solve_orbit(scene, broken, **kw)
     assert bool(out.steady[0]) and not bool(out.steady[1])
     assert bool(jnp.all(jnp.isfinite(out.metrics.stroke_volume)))
+    with pytest.raises(ValueError, match="save = 'state': allowed traces, metrics"):
+        solve_orbit(scene, steady.y0, omega=[3.0, 4.0], afterload=60 * mmHg, save="state")
     with pytest.raises(ValueError, match="start: a dict"):
         solve_orbit(scene, steady.y0["volume"], **kw)
     with pytest.raises(ValueError, match="start: states"):
