@@ -471,10 +471,8 @@ def shoot_periodic(
     beats = guess.beats + final.beats
     newton_steps = root.stats["num_steps"]
     if ts is None:  # the orbit's start only, its derivative the orbit's
-        y_start, poison = _orbit_start(
-            field, final.y0, period, jump_ts, total_volume, v_ref, closed, config
-        )
-        y_start = jax.tree_util.tree_map(lambda a: a + poison.astype(a.dtype), y_start)
+        orbit = (field, final.y0, period, jump_ts, total_volume, v_ref, closed, config)
+        y_start, _, _ = _orbit(*orbit)
         return Beats(
             ts, None, y_start, final.y_end, beats, final.residual, drift, result, jnp.array(0),
             newton_steps,
@@ -518,68 +516,86 @@ def orbit_beat(
     started from (it depends on the parameters: the pump's rest volume, the column's head).
     ``closed`` and the other arguments are those of :func:`shoot_periodic`.
 
-    Where ``dPhi/du - I`` is singular or not finite (no isolated orbit there), the observed
-    derivatives are NaN; the state's derivatives are zero, so that no NaN reaches a stiff
-    solver's linear solve (whose derivative checks raise).
+    Where ``dPhi/du - I`` is singular or not finite (no isolated orbit there), the derivatives
+    are NaN. They are computed with the beat itself, inside one custom derivative rule: no NaN
+    reaches the derivative of a stiff solver's linear solve (whose checks raise), and one batched
+    solve gives the beat's derivatives along the unknowns and along the parameters at once.
     """
     config = preset("default") if config is None else config
-    y, poison = _orbit_start(field, y_start, period, jump_ts, total_volume, v_ref, closed, config)
     # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
-    sampled = _one_beat(field, period, y, jnp.clip(ts / period, 0.0, 1.0), jump_ts, config)
-    observed = sampled.ys if observe is None else observe(ts, sampled.ys)
-    observed = jax.tree_util.tree_map(lambda a: a + poison.astype(a.dtype), observed)  # +0
-    y_end = jax.tree_util.tree_map(lambda a: a[-1], sampled.ys)
+    y, ys, (result, steps) = _orbit(
+        field, y_start, period, jump_ts, total_volume, v_ref, closed, config,
+        jnp.clip(ts / period, 0.0, 1.0),
+    )
+    observed = ys if observe is None else observe(ts, ys)
+    y_end = jax.tree_util.tree_map(lambda a: a[-1], ys)
     drift = jnp.abs(total_volume(y_end) - v_ref) / jnp.abs(v_ref)
-    result = _finite_or_failed(sampled.ys, sampled.result)
     return Beats(
-        ts, observed, y, y_end, jnp.array(1), _cycle_residual(y, y_end), drift, result,
-        sampled.stats["num_steps"], jnp.array(0),
+        ts, observed, y, y_end, jnp.array(1), _cycle_residual(y, y_end), drift,
+        _finite_or_failed(ys, result), steps, jnp.array(0),
     )
 
 
-def _orbit_start(field, y_start, period, jump_ts, total_volume, v_ref, closed, config):
-    """(``y_start`` differentiated as the orbit through it, 0 or NaN): :func:`orbit_beat`."""
+def _orbit(field, y_start, period, jump_ts, total_volume, v_ref, closed, config, save_s=None):
+    """``(y, ys, (result, steps))``: ``y_start`` and, with phases ``save_s``, the beat from it
+    sampled there (else None), both differentiated as the orbit through ``y_start``
+    (:func:`orbit_beat`)."""
     y_fixed = _frozen(y_start)
     unknowns = _Unknowns(y_fixed, closed, total_volume)
-    live = (field, period, jump_ts, v_ref)
+    live = (field, period, jump_ts, v_ref, save_s)
 
-    def beat_map(u, live):
-        field, period, jump_ts, v_ref = live
-        return unknowns.of(_beat_end(field, period, unknowns.state(u, v_ref), jump_ts, config)) - u
+    def beat(u, live):
+        field, period, jump_ts, v_ref, save_s = live
+        sol = _one_beat(field, period, unknowns.state(u, v_ref), save_s, jump_ts, config)
+        y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
+        samples = None if save_s is None else sol.ys
+        return (unknowns.of(y_end) - u, samples), (sol.result, sol.stats["num_steps"])
 
     u = unknowns.of(y_fixed)
-    u, poison = _on_orbit(u, live, eqx.filter_closure_convert(beat_map, u, live))
-    return unknowns.state(u, v_ref), poison
+    u, ys, aux = _on_orbit(u, live, eqx.filter_closure_convert(beat, u, live))
+    return unknowns.state(u, v_ref), ys, aux
 
 
 @eqx.filter_custom_jvp
-def _on_orbit(u, live, beat_map):
-    """``(u, 0)``; differentiated, ``u`` moves as the root of ``beat_map(., live)`` through it,
-    and the 0 is NaN where that root's derivative is not finite (:func:`orbit_beat`)."""
-    del live, beat_map
-    return u, jnp.zeros((), u.dtype)
+def _on_orbit(u, live, beat):
+    """``(u, samples, aux)`` of ``beat(u, live) = ((G(u), samples), aux)``, ``G(u) = Phi(u) -
+    u``. Differentiated, ``u`` moves as the root of ``G`` through it (implicit function
+    theorem) and the samples with it; both derivatives are NaN where ``dG/du`` is singular."""
+    (_, samples), aux = beat(u, live)
+    return u, samples, aux
 
 
 @_on_orbit.def_jvp
 def _on_orbit_jvp(primals, tangents):
-    u, live, beat_map = primals
-    _, t_live, _ = tangents  # u's own tangent is ignored; beat_map closes over frozen values
-    out = _on_orbit(u, live, beat_map)
+    u, live, beat = primals
+    _, t_live, _ = tangents  # u's own tangent is ignored; beat closes over frozen values
     unperturbed = jax.tree_util.tree_map(lambda t: t is None, t_live, is_leaf=_is_none)
     if all(jax.tree_util.tree_leaves(unperturbed)):
-        return out, (None, None)
+        out = _on_orbit(u, live, beat)
+        return out, jax.tree_util.tree_map(lambda _: None, out)
     fixed, diff = eqx.partition(live, unperturbed, is_leaf=_is_none)
     n = u.shape[0]
 
-    def along(a):  # u moved by a[:n], the inputs by a[n] along their tangent
-        moved = jax.tree_util.tree_map(lambda x, t: x + a[n] * t, diff, t_live)
-        return beat_map(u + a[:n], eqx.combine(moved, fixed))
+    def moved(u, diff):
+        return beat(u, eqx.combine(diff, fixed))
 
-    # dG/du and dG/dinputs . t_inputs as the columns of one Jacobian: one batched solve
-    jac = jax.jacfwd(along)(jnp.zeros(n + 1, u.dtype))
-    t_u = -jnp.linalg.solve(jac[:, :n], jac[:, n])
-    finite = jnp.all(jnp.isfinite(t_u))
-    return out, (jnp.where(finite, t_u, 0.0), jnp.where(finite, 0.0, jnp.nan))
+    # The beat and its derivatives along each unknown and along the inputs' tangent: one
+    # batched solve. Directions 0..n-1 move u, direction n the inputs; the primal outputs do
+    # not depend on the directions (so an outer vmap, as jax.jacfwd's, leaves them unbatched).
+    t_us = jnp.concatenate([jnp.eye(n, dtype=u.dtype), jnp.zeros((1, n), u.dtype)])
+    t_diffs = jax.tree_util.tree_map(
+        lambda t: jnp.concatenate([jnp.zeros((n, *jnp.shape(t)), t.dtype), t[None]]), t_live
+    )
+    (_, samples), (t_g, t_samples), aux = jax.vmap(
+        lambda tu, td: jax.jvp(moved, (u, diff), (tu, td), has_aux=True),
+        out_axes=(None, 0, None),
+    )(t_us, t_diffs)
+    t_u = -jnp.linalg.solve(t_g[:n].T, t_g[n])
+    t_u = jnp.where(jnp.all(jnp.isfinite(t_u)), t_u, jnp.nan)
+    t_samples = jax.tree_util.tree_map(
+        lambda t: t[n] + jnp.tensordot(t_u, t[:n], axes=1), t_samples
+    )
+    return (u, samples, aux), (t_u, t_samples, jax.tree_util.tree_map(lambda _: None, aux))
 
 
 def _is_none(x) -> bool:
