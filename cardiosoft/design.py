@@ -61,10 +61,10 @@ with central differences (steps 1e-3 in C, 1e-2 in Omega) of runs converged beat
 1e-5 ml within 0.3 % at 30 mmHg and 0.02 % at 60 and 90 mmHg (``tests/test_design.py`` holds
 them to 1 %). The split is for the compile: each program is about half the size of the shooting
 solve differentiated whole, and the two compile at once on two threads while the verifying
-run's is traced (#13: a fresh process 27 s instead of 30-33 s, ``benchmarks/design.py``).
+run's is traced (#13: a fresh process 25-29 s instead of 30-33 s, ``benchmarks/design.py``).
 Shooting finds orbits where beats ring for longer than the scene's ``max_beats`` (the bench at
-60 bpm: 32 of 32 grid candidates steady against 24 beat after beat); ``"beats"`` compiles in
-about two thirds of the time. The search solves at the scene's accuracy preset, as the
+60 bpm and 90 mmHg: 32 of 32 grid candidates steady against 24 beat after beat); ``"beats"``
+compiles faster (a fresh process about 3-5 s less). The search solves at the scene's accuracy preset, as the
 verifying run does (``accuracy="fast"`` is faster; its stroke volumes differ from the run's by
 up to 0.3 ml in the stiff Windkessel scenes).
 
