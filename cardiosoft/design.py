@@ -64,9 +64,9 @@ solve differentiated whole, and the two compile at once on two threads while the
 run's is traced (#13: a fresh process 25-29 s instead of 30-33 s, ``benchmarks/design.py``).
 Shooting finds orbits where beats ring for longer than the scene's ``max_beats`` (the bench at
 60 bpm and 90 mmHg: 32 of 32 grid candidates steady against 24 beat after beat); ``"beats"``
-compiles faster (a fresh process about 3-5 s less). The search solves at the scene's accuracy preset, as the
-verifying run does (``accuracy="fast"`` is faster; its stroke volumes differ from the run's by
-up to 0.3 ml in the stiff Windkessel scenes).
+compiles faster (a fresh process about 3-5 s less). The search solves at the scene's accuracy
+preset, as the verifying run does (``accuracy="fast"`` is faster; its stroke volumes differ from
+the run's by up to 0.3 ml in the stiff Windkessel scenes).
 
 ``pareto=True`` also traces the designs that hit the targets across Omega (C solved for at
 each of :data:`REFINE` Omegas) and reports which of them trade peak force against efficiency

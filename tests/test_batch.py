@@ -269,7 +269,7 @@ def test_shooting_derivative_with_equal_steps_matches_central_differences(scene)
     jac, (_, steady, newton) = jac_and_values(jnp.asarray(design))
     assert bool(steady) and int(newton) > 0
     start = solve_beats(
-        scene, omega=4.0, shortening=0.4, afterload=head, save="metrics", steady="shooting",
+        scene, omega=4.0, shortening=0.4, afterload=head, save="state", steady="shooting",
         config=config,
     ).y0
 
@@ -293,6 +293,7 @@ def test_shooting_derivative_with_equal_steps_matches_central_differences(scene)
             )
 
 
+@pytest.mark.slow  # 50 s on two busy cores; the orbit's derivative is also checked above
 def test_shooting_derivative_where_newton_fails_is_that_of_the_orbit(scene):
     """Where Newton shooting fails (8 iterations; the ringing bench at 60 bpm, 90 mmHg, Omega
     4.875, C 0.25, found by the design notebook's Pareto front) the beats after it are the
@@ -322,39 +323,35 @@ def test_shooting_derivative_where_newton_fails_is_that_of_the_orbit(scene):
     assert float(tangent) / ml == pytest.approx(central / ml, rel=0.01)
 
 
-def test_solve_orbit_starts_where_told_and_says_whether_it_was_the_orbit(scene):
-    """From a steady solve's y0 (``save="state"``: the orbit's start, no sampled beat) the beat
-    is that solve's last beat (same metrics, steady); from rest it is the first beat (not
-    steady); a start that is not finite begins at rest, and bad
-    starts are refused with the parameter named."""
-    kw = dict(omega=[3.0, 4.0], afterload=60 * mmHg, save="metrics")
-    steady = solve_beats(scene, steady="shooting", **kw)
-    state = solve_beats(scene, steady="shooting", **(kw | {"save": "state"}))
+def test_solve_orbit_starts_where_told_and_says_whether_it_was_the_orbit(scene, both_modes):
+    """From a steady solve's y0 (``save="state"``: no sampled beat) the beat is that solve's last
+    beat (the same metrics, steady); a start that is not finite begins at rest (not steady,
+    finite), and bad starts are refused with the parameter named. (The derivative from y0 is
+    checked against central differences above.)"""
+    kw = dict(omega=[3.0, 4.0, 5.0], afterload=60 * mmHg)
+    steady = both_modes["metrics"]
+    state = solve_beats(scene, save="state", **kw)
     assert state.metrics is None and state.traces is None and bool(jnp.all(state.steady))
     leaves = jax.tree_util.tree_leaves
     for a, b in zip(leaves(state.y0), leaves(steady.y0), strict=True):
-        np.testing.assert_allclose(a, b, rtol=1e-12)  # the same orbit, without its samples
-    again = solve_orbit(scene, state.y0, **kw)
+        np.testing.assert_allclose(a, b, rtol=1e-12)  # the same beats, without the samples
+    again = solve_orbit(scene, state.y0, save="metrics", **kw)
     assert bool(jnp.all(again.steady)) and bool(jnp.all(again.succeeded))
-    np.testing.assert_allclose(again.metrics.stroke_volume, steady.metrics.stroke_volume, rtol=1e-9)
-    assert np.asarray(again.beats).tolist() == [1, 1]
-    first = solve_beats(scene, beats=1, **kw)  # its y0: the state at rest
-    from_rest = solve_orbit(scene, first.y0, **kw)
-    assert not bool(jnp.any(from_rest.steady))
-    sv = first.metrics.stroke_volume
-    np.testing.assert_allclose(from_rest.metrics.stroke_volume, sv, rtol=1e-9)
-    broken = {**steady.y0, "volume": steady.y0["volume"].at[1].set(jnp.nan)}
-    out = solve_orbit(scene, broken, **kw)
-    assert bool(out.steady[0]) and not bool(out.steady[1])
+    assert np.asarray(again.beats).tolist() == [1, 1, 1]
+    sv = steady.metrics.stroke_volume
+    np.testing.assert_allclose(again.metrics.stroke_volume, sv, rtol=1e-9)
+    broken = {**state.y0, "volume": state.y0["volume"].at[1].set(jnp.nan)}
+    out = solve_orbit(scene, broken, save="metrics", **kw)
+    assert np.asarray(out.steady).tolist() == [True, False, True]
     assert bool(jnp.all(jnp.isfinite(out.metrics.stroke_volume)))
     with pytest.raises(ValueError, match="save = 'state': allowed traces, metrics"):
-        solve_orbit(scene, steady.y0, omega=[3.0, 4.0], afterload=60 * mmHg, save="state")
+        solve_orbit(scene, state.y0, save="state", **kw)
     with pytest.raises(ValueError, match="start: a dict"):
-        solve_orbit(scene, steady.y0["volume"], **kw)
+        solve_orbit(scene, state.y0["volume"], **kw)
     with pytest.raises(ValueError, match="start: states"):
-        solve_orbit(scene, {"volume": steady.y0["volume"]}, **kw)
-    with pytest.raises(ValueError, match="start: 2 members"):
-        solve_orbit(scene, steady.y0, omega=[3.0, 4.0, 5.0], afterload=60 * mmHg)
+        solve_orbit(scene, {"volume": state.y0["volume"]}, **kw)
+    with pytest.raises(ValueError, match="start: 3 members"):
+        solve_orbit(scene, state.y0, omega=[3.0, 4.0], afterload=60 * mmHg)
 
 
 def test_every_rate_samples_its_beat_end(scene):
