@@ -600,7 +600,7 @@ def _member_solve(structure, numbers, pump, config, space, steady):
             out = solve(scene, x_m, bpm_m[None], one_head, one_start)
             return jax.tree_util.tree_map(lambda a: a[0], out)
 
-        size = next(iter(x.values())).shape[0]
+        (size,) = jnp.broadcast_shapes(*(jnp.shape(v) for v in (*x.values(), bpm)))
         x = {name: jnp.broadcast_to(v, (size,)) for name, v in x.items()}
         return jax.vmap(one)(x, jnp.broadcast_to(bpm, (size,)), head, start)
 

@@ -231,6 +231,34 @@ def test_design_space_maps_inside_the_ranges_and_back():
     np.testing.assert_allclose(back, z[1], atol=1e-9)
 
 
+@pytest.mark.slow  # its own compile, about 25-60 s
+def test_a_freed_actuation_fraction_is_searched_and_verified(pump):
+    """A fraction is a scene number, shared by a batch: the search then solves a batch of one
+    per member (found broken by hand once, 2026-12-02). The verifying run()'s SV is the answer."""
+    r = design.optimise(
+        "bench-dynamic",
+        target_sv=70.0,
+        afterload=90.0,
+        bpm=60.0,
+        free=("omega", "shortening", "pull_fraction"),
+        max_rounds=4,
+        pump=pump,
+    )
+    assert r.reached, r.message
+    assert 0 < r.design["pull_fraction"] < 1 and r.design["release_fraction"] == 0.5
+    check = cs.run(
+        cs.load_scene("bench-dynamic").replace(pull_fraction=r.design["pull_fraction"]),
+        omega=r.omega,
+        shortening=r.shortening,
+        bpm=60,
+        afterload=[90],
+        pump=pump,
+    )
+    (member,) = check.members
+    assert member.metrics["stroke_volume"] / ml == pytest.approx(r.targets[0].sv_ml, abs=1e-9)
+    assert abs(r.targets[0].sv_ml - 70.0) <= 0.5
+
+
 def test_the_optimiser_is_an_optax_chain_and_steps_by_gauss_newton():
     """One residual, two variables: the step is the least-norm one that zeroes the
     linearised residual (no objective, a radius that does not bind)."""
