@@ -312,6 +312,12 @@ def _one_beat(field, period, y, save_ts, jump_ts, config):
     )
 
 
+def _phases(ts, period):
+    """Save times ``ts`` (s) as phases of the beat in [0, 1]: ts[-1] / period can round to
+    1 + 1 ULP, past the solve's end, so they are clipped."""
+    return jnp.clip(ts / period, 0.0, 1.0)
+
+
 def _finite_or_failed(states, result):
     # A state that is not finite after a successful solve is a broken invariant, never a
     # result: diffrax checks the save times with a host callback that raises, which the CLIs
@@ -389,8 +395,7 @@ def periodic_beats(
     if ts is None:
         observed, steps, result = None, jnp.array(0), _finite_or_failed(y_end, result)
     else:
-        # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
-        last = _one_beat(field, period, y_start, jnp.clip(ts / period, 0.0, 1.0), jump_ts, config)
+        last = _one_beat(field, period, y_start, _phases(ts, period), jump_ts, config)
         observed = last.ys if observe is None else observe(ts, last.ys)
         result, steps = _finite_or_failed(last.ys, result), last.stats["num_steps"]
     return Beats(ts, observed, y_start, y_end, beats, residual, drift, result, steps, jnp.array(0))
@@ -522,10 +527,8 @@ def orbit_beat(
     solve gives the beat's derivatives along the unknowns and along the parameters at once.
     """
     config = preset("default") if config is None else config
-    # ts[-1] / period can round to 1 + 1 ULP, past the end: clipped
     y, ys, (result, steps) = _orbit(
-        field, y_start, period, jump_ts, total_volume, v_ref, closed, config,
-        jnp.clip(ts / period, 0.0, 1.0),
+        field, y_start, period, jump_ts, total_volume, v_ref, closed, config, _phases(ts, period)
     )
     observed = ys if observe is None else observe(ts, ys)
     y_end = jax.tree_util.tree_map(lambda a: a[-1], ys)
