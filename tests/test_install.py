@@ -16,6 +16,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from cardiosoft.pump import DEFAULT_ARTIFACT
+
 ROOT = Path(__file__).resolve().parent.parent
 # what pyproject.toml builds the distribution from
 SOURCES = ("pyproject.toml", "README.md", "cardiosoft", "surrogates", "fit/data")
@@ -67,7 +69,7 @@ def test_wheel_installs_and_simulate_compares_with_the_paper(tmp_path):
     file, root, weights, rows = _run([python, "-c", CHECK], cwd=work, env=env).stdout.split()
     assert Path(file).is_relative_to(site / "cardiosoft"), file
     assert Path(root) == site / "cardiosoft" / "_paper_data"
-    assert (weights, rows) == ("ss950-v3.eqx", "3")
+    assert (weights, rows) == (f"{DEFAULT_ARTIFACT}.eqx", "3")
 
     out = subprocess.run(
         [python, "-m", "cardiosoft.simulate", "--bpm", "30", "--compare-paper"],
