@@ -202,35 +202,56 @@ def test_the_valves_only_dissipate():
 def test_energy_ratios_are_none_where_they_are_not_meaningful():
     """bench-dynamic ('default'). C 1.9e-97 (Omega 3.88, 111.6 mmHg, 298.9 bpm: a hypothesis
     draw of the hard-case suite): the beat carries 6.8e-16 J, round-off of the shell's 0.34 J,
-    and the residual was 1.5e80, the efficiency -3.2e80. Omega 0, C 0.01, 150 mmHg, 60 bpm, a
-    0.04-ml stroke: steady to the scene's 0.01 ml while the shell still stores 8 % of the work
-    in each beat, an efficiency of -0.076 (measured). Both efficiencies are reported as none,
-    flagged, and the first residual too; Omega 0, C 0.4 is reported, in [0, 1]."""
+    and the residual was 1.5e80, the efficiency -3.2e80: both reported as none, flagged.
+    Omega 0, C 0.4 is reported, in [0, 1]. (A beat whose shell still stores energy:
+    test_an_energy_efficiency_of_a_beat_that_stores_energy_is_not_reported.)"""
     from cardiosoft.batch import solve_beats
-    from cardiosoft.results import STORED_CHANGE_TOL, member_results
+    from cardiosoft.results import member_results
 
     out = solve_beats(
         "bench-dynamic",
-        omega=[3.8763409659652757, 0.0, 0.0],
-        shortening=[1.914530883185141e-97, 0.01, 0.4],
-        afterload=np.asarray([111.61406296567601, 150.0, 150.0]) * mmHg,
-        bpm=[298.8540726443747, 60.0, 60.0],
+        omega=[3.8763409659652757, 0.0],
+        shortening=[1.914530883185141e-97, 0.4],
+        afterload=np.asarray([111.61406296567601, 150.0]) * mmHg,
+        bpm=[298.8540726443747, 60.0],
         energy=True,
         save="metrics",
     )
-    vanishing, small, full = member_results(["a", "b", "c"], out, None)
+    vanishing, full = member_results(["a", "b"], out, None)
     assert math.isnan(vanishing.metrics["energy_residual"])
     assert math.isnan(vanishing.metrics["energy_efficiency"])
     assert any(f.startswith("energy account") for f in vanishing.flags)
-    m = small.metrics
-    assert small.ok and abs(m["stored_change"]) > STORED_CHANGE_TOL * m["work_in"]
-    assert math.isnan(m["energy_efficiency"]) and math.isfinite(m["energy_residual"])
-    assert any(f.startswith("energy efficiency") for f in small.flags)
     assert 0.0 <= full.metrics["energy_efficiency"] <= 1.0
     assert not any(f.startswith("energy") for f in full.flags)
-    records = summary_records(RunResult(load_scene("bench-dynamic"), (vanishing, small, full)))
+    records = summary_records(RunResult(load_scene("bench-dynamic"), (vanishing, full)))
     json.loads(json.dumps(records, allow_nan=False))
-    assert [r["energy_efficiency"] is None for r in records] == [True, True, False]
+    assert [r["energy_efficiency"] is None for r in records] == [True, False]
+
+
+@pytest.mark.parametrize("stored", [0.0, 0.9e-3, 1.1e-3, -1.1e-3])
+def test_an_energy_efficiency_of_a_beat_that_stores_energy_is_not_reported(stored):
+    """delivered / in is an efficiency only for a beat periodic in the shell's energy: one
+    whose shell stores more than STORED_CHANGE_TOL (1e-3) of the work in gets none, flagged, its
+    residual kept (the account includes the stored change). Built numbers (J): the ss950-v3
+    bench at Omega 0, C 0.01, 150 mmHg, 60 bpm was such a beat (8 %), steady to 0.01 ml."""
+    from cardiosoft.results import STORED_CHANGE_TOL
+
+    work_in = 2.0
+    change = stored * work_in
+    delivered = 0.5 * (work_in - change)
+    metrics = beat(
+        work_in=work_in, work_delivered=delivered, work_lost=work_in - change - delivered,
+        stored_change=change, stored_energy=1.0, energy_residual=1e-9,
+        energy_efficiency=delivered / work_in,
+    )
+    out = record(metrics)
+    assert out["energy_residual"] == 1e-9
+    if abs(stored) <= STORED_CHANGE_TOL:
+        assert out["energy_efficiency"] == pytest.approx(delivered / work_in)
+        assert not any(f.startswith("energy") for f in out["flags"])
+    else:
+        assert out["energy_efficiency"] is None
+        assert any(f.startswith("energy efficiency") for f in out["flags"])
 
 
 def test_a_compliance_below_the_validated_minimum_is_refused():
