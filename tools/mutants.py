@@ -3,7 +3,7 @@
     nice -n 10 python tools/mutants.py              # every mutant; one test suite per mutant (slow)
     python tools/mutants.py --list                  # the mutants and where they apply
     python tools/mutants.py valve-law wk-capacitor  # some of them
-    python tools/mutants.py --tests tests/test_valve_scenes.py valve-law   # a narrower suite
+    python tools/mutants.py valve-law --tests tests/test_valve_scenes.py   # a narrower suite
 
 Each mutant is a patch ``(file, exact original text, mutated text)``: a 2 % error in a metric,
 a pressure law, the pump's energy, a valve law or the water column's head. For each one the
@@ -210,7 +210,8 @@ def main(argv=None) -> int:
     p.add_argument("names", nargs="*", help="mutants to run (default: all; see --list)")
     p.add_argument("--list", action="store_true", help="list the mutants and exit")
     p.add_argument("--tests", nargs="+", default=[], metavar="PATH",
-                   help="test files or ids to run (default: the whole suite, tests/)")
+                   help="test files or ids to run (default: the whole suite, tests/); "
+                   "give the mutants' names before it")
     p.add_argument("--workers", type=int, default=2, help="pytest-xdist workers (default 2)")
     p.add_argument("--timeout", type=float, default=3600.0,
                    help="seconds allowed to one mutant's test run (default 3600)")
