@@ -70,6 +70,7 @@ import numpy as np
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
 from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
+from cardiosoft.loop_scene import LoopScene
 from cardiosoft.metrics import BeatMetrics, beat_metrics
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
@@ -175,7 +176,7 @@ class BeatSolution(eqx.Module):
     - ``members``: the member values, ``{"omega", "shortening", "bpm", "afterload"}`` (the
       afterload, a column head in Pa, is NaN for a Windkessel scene).
     - ``metrics``: the last beat's :class:`~cardiosoft.metrics.BeatMetrics` (None with
-      ``save="state"``).
+      ``save="state"``); a closed loop's :class:`~cardiosoft.loop_batch.LoopMetrics`.
     - ``traces``: with ``save="traces"``, the last beat: ``time`` (s, from 0 to the period),
       ``volume`` and the other states, and every signal of :meth:`PumpCircuit.signals`;
       ``None`` with ``save="metrics"`` or ``"state"``.
@@ -409,6 +410,9 @@ def solve_beats(
     **Arguments:**
 
     - ``scene``: a :class:`~cardiosoft.scene.Scene`, a shipped scene's name or a scene file.
+      A closed-loop scene (:class:`~cardiosoft.loop_scene.LoopScene`) goes to
+      :func:`cardiosoft.loop_batch.solve_loop` (``omega`` and ``shortening`` set every pump
+      of it; its metrics are :class:`~cardiosoft.loop_batch.LoopMetrics`).
     - ``omega``, ``shortening``: the design (dimensionless); ``bpm``: beats per minute;
       ``afterload``: column head (Pa) of a water-column scene. Scalars or 1-D arrays, broadcast
       to one batch axis; ``None`` keeps the scene's value(s).
@@ -430,7 +434,11 @@ def solve_beats(
     **Returns:** a :class:`BeatSolution`. Nothing is raised for a member that fails or is not
     steady: see ``succeeded``, ``steady`` and ``message(i)``. Bad input raises ``ValueError``.
     """
-    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene = scene if isinstance(scene, Scene | LoopScene) else load_scene(scene)
+    if isinstance(scene, LoopScene):
+        return _solve_loop_scene(
+            scene, omega, shortening, bpm, afterload, beats, save, steady, energy, pump, config
+        )
     if scene.static:
         raise ValueError(f"scene {scene.name} is static: use solve_static")
     if save not in SAVE_MODES:
@@ -451,6 +459,31 @@ def solve_beats(
         structure, numbers, pump, _shard(members), max_beats, tol, config, save, method, energy
     )
     return _solution(scene, members, config, metrics, traces, out, beats is not None)
+
+
+def _solve_loop_scene(
+    scene, omega, shortening, bpm, afterload, beats, save, steady, energy, pump, config
+) -> BeatSolution:
+    """:func:`solve_beats` of a closed-loop scene (:func:`cardiosoft.loop_batch.solve_loop`)."""
+    from cardiosoft.loop_batch import solve_loop  # it builds on this module
+
+    if afterload is not None:
+        raise ValueError(f"afterload: scene {scene.name} is a closed loop, with no column head")
+    if energy:
+        raise ValueError(
+            f"energy: scene {scene.name} is a closed loop, which keeps no energy account yet"
+        )
+    return solve_loop(
+        scene,
+        bpm=bpm,
+        omega=omega,
+        shortening=shortening,
+        beats=beats,
+        save=save,
+        steady=steady,
+        pump=pump,
+        config=config,
+    )
 
 
 def solve_orbit(

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from cardiosoft.batch import BeatSolution, StaticSolution
+from cardiosoft.loop_scene import LoopScene
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import Domain
 from cardiosoft.scene import Scene
@@ -236,7 +237,12 @@ def member_results(
 
 
 def summary_records(result: RunResult) -> list[dict]:
-    """One JSON-ready record per member, in user units (``summary.json``)."""
+    """One JSON-ready record per member, in user units (``summary.json``); a closed loop's by
+    :func:`cardiosoft.loop_results.loop_summary_records`."""
+    if isinstance(result.scene, LoopScene):
+        from cardiosoft.loop_results import loop_summary_records  # it builds on this module
+
+        return loop_summary_records(result)
     records = []
     for m in result.members:
         x = m.metrics

@@ -49,6 +49,7 @@ from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
 __all__ = [
     "AFTERLOADS",
     "EFFECTS",
+    "LOOP_SCENE_NAMES",
     "RANGES",
     "SCENE_NAMES",
     "Scene",
@@ -126,6 +127,8 @@ the type."""
 EFFECTS = {tag: kind.effects + SHELL_EFFECTS for tag, kind in AFTERLOADS.items()}
 """The effects each afterload type allows."""
 SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")
+LOOP_SCENE_NAMES = ("heart", "soft-lv", "soft-rv", "tah")
+"""The shipped closed-loop scenes (``kind = "closed_loop"``, :mod:`cardiosoft.loop_scene`)."""
 ACCURACY = ACCURACY_PRESETS
 
 
@@ -472,16 +475,19 @@ def _validated(scene: Scene) -> Scene:
 
 
 def load_scene(name_or_path) -> Scene:
-    """A shipped scene by name (:data:`SCENE_NAMES`) or a scene file by path."""
+    """A shipped scene by name (:data:`SCENE_NAMES`, :data:`LOOP_SCENE_NAMES`) or a scene file
+    by path; a closed-loop file (``kind = "closed_loop"``) gives a
+    :class:`~cardiosoft.loop_scene.LoopScene`."""
     text_name = str(name_or_path)
-    if text_name in SCENE_NAMES:
+    if text_name in SCENE_NAMES + LOOP_SCENE_NAMES:
         path = resources.files("cardiosoft") / "scenes" / f"{text_name}.toml"
         source, text = text_name, path.read_text()
     else:
         path = Path(text_name)
         if not path.is_file():
             raise ValueError(
-                f"scene = {text_name!r}: allowed a shipped scene ({', '.join(SCENE_NAMES)}) "
+                f"scene = {text_name!r}: allowed a shipped scene "
+                f"({', '.join(SCENE_NAMES + LOOP_SCENE_NAMES)}) "
                 "or the path of a .toml scene file"
             )
         source, text = str(path), path.read_text()
@@ -489,4 +495,8 @@ def load_scene(name_or_path) -> Scene:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"{source}: not valid TOML: {err}") from None
+    if doc.get("kind") == "closed_loop":
+        from cardiosoft.loop_scene import parse_loop_scene  # it builds on this module
+
+        return parse_loop_scene(source, doc)
     return _parse(source, doc)

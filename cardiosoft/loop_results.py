@@ -1,0 +1,293 @@
+"""Runs of closed-loop scenes: records, flags, the summary and its table (issue 26).
+
+:func:`cardiosoft.run` hands a :class:`~cardiosoft.loop_scene.LoopScene` to :func:`run_loop`;
+:func:`cardiosoft.summary_records` hands its result to :func:`loop_summary_records`. A member's
+``metrics`` are the :class:`~cardiosoft.loop_batch.LoopMetrics` flattened to
+``"{side}_{field}"`` (``"left_stroke_volume"``) and ``pulmonary_volume``,
+``systemic_volume``, ``total_volume`` (SI).
+
+**Flags** (:func:`loop_flags`), each band with its source:
+
+- **pulmonary congestion**: mean left-atrial pressure above :data:`LA_CONGESTION` (18 mmHg: the
+  pulmonary capillary wedge pressure that separates the congested from the uncongested
+  haemodynamic subsets, Forrester et al. 1976, N. Engl. J. Med. 295, 1356);
+- **systemic venous congestion**: mean right-atrial pressure above :data:`RA_CONGESTION`
+  (10 mmHg: elevated in Brinkley et al. 2018, Am. Heart J. 199, 31, whose RA >= 10 mmHg was
+  associated with in-hospital mortality);
+- **a collapsing atrium**: an atrial pressure below 0 at any time of the beat, i.e. the atrium
+  below its unstressed volume V_0 (the model's own ``p = E(t)(V - V_0)``): a thin-walled
+  atrium and the veins feeding it collapse rather than hold suction (the suction events of
+  ventricular assist devices);
+- **volume piled up on one side**: the pulmonary vessels' share of the blood volume outside
+  :data:`PULMONARY_SHARE_BAND` times the native ``heart`` scene's share
+  (:data:`NATIVE_PULMONARY_SHARE`): the lungs' blood volume ranges "from as little as one-half
+  normal up to twice normal" (Guyton and Hall, Textbook of Medical Physiology, ch. 39);
+- for each soft pump, what :func:`cardiosoft.results.flags` says of the pump scenes: its
+  pressure outside the surrogate's fitted range, a cable that would push.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from cardiosoft.batch import BeatSolution
+from cardiosoft.loop_batch import SIDES, loop_config, loop_members, solve_loop
+from cardiosoft.loop_scene import LoopScene
+from cardiosoft.pump import Domain, PumpSurrogate, load
+from cardiosoft.results import MemberResult, RunResult, flags
+from cardiosoft.units import ml, mm, mmHg
+
+__all__ = [
+    "LA_CONGESTION",
+    "NATIVE_PULMONARY_SHARE",
+    "PULMONARY_SHARE_BAND",
+    "RA_CONGESTION",
+    "configure_loop",
+    "loop_flags",
+    "loop_summary_records",
+    "loop_table",
+    "run_loop",
+]
+
+LA_CONGESTION = 18.0 * mmHg
+"""Mean left-atrial pressure (Pa) above which the lungs are congested (module docstring)."""
+RA_CONGESTION = 10.0 * mmHg
+"""Mean right-atrial pressure (Pa) above which the systemic veins are congested."""
+NATIVE_PULMONARY_SHARE = 0.2449
+"""Mean share of the blood volume in the pulmonary vessels of the ``heart`` scene at its
+periodic steady state (740.8 of 3025 ml; measured 2026-12, checked by
+tests/test_closed_loop.py)."""
+PULMONARY_SHARE_BAND = (0.5, 2.0)
+"""The pulmonary share allowed, relative to :data:`NATIVE_PULMONARY_SHARE`."""
+_ATRIA = {"left": "left atrium", "right": "right atrium"}
+
+
+def _flat(metrics, i: int) -> dict[str, float]:
+    out = {}
+    for side in SIDES:
+        m = getattr(metrics, side)
+        out |= {f"{side}_{f.name}": float(getattr(m, f.name)[i]) for f in dataclasses.fields(m)}
+    for name in ("pulmonary_volume", "systemic_volume", "total_volume"):
+        out[name] = float(getattr(metrics, name)[i])
+    return out
+
+
+def loop_flags(metrics: dict[str, float], pumps, domain: Domain) -> tuple[str, ...]:
+    """What of a member's numbers lies outside its band (module docstring), in words.
+
+    ``metrics``: a member's flat metrics (SI); ``pumps``: the sides with a soft pump."""
+    out = []
+    la, ra = metrics["left_atrial_mean"], metrics["right_atrial_mean"]
+    if la > LA_CONGESTION:
+        out.append(
+            f"pulmonary congestion: mean left-atrial pressure {la / mmHg:.1f} mmHg, above "
+            f"{LA_CONGESTION / mmHg:g} mmHg"
+        )
+    if ra > RA_CONGESTION:
+        out.append(
+            f"systemic venous congestion: mean right-atrial pressure {ra / mmHg:.1f} mmHg, above "
+            f"{RA_CONGESTION / mmHg:g} mmHg"
+        )
+    for side, atrium in _ATRIA.items():
+        low = metrics[f"{side}_atrial_min"]
+        if low < 0.0:
+            out.append(
+                f"collapsing {atrium}: its pressure falls to {low / mmHg:.1f} mmHg (below its "
+                "unstressed volume); a real atrium collapses rather than hold suction"
+            )
+    share = metrics["pulmonary_volume"] / metrics["total_volume"]
+    lo, hi = (b * NATIVE_PULMONARY_SHARE for b in PULMONARY_SHARE_BAND)
+    if not lo <= share <= hi:
+        where = "lungs" if share > hi else "systemic circulation"
+        native = NATIVE_PULMONARY_SHARE
+        out.append(
+            f"blood piled up in the {where}: the pulmonary vessels hold {share:.1%} of it, "
+            f"outside {lo:.1%}-{hi:.1%} (one-half to twice the native heart's {native:.1%})"
+        )
+    for side in pumps:
+        pump_metrics = {
+            "min_pump_pressure": metrics[f"{side}_ventricle_min_pressure"],
+            "max_pump_pressure": metrics[f"{side}_ventricle_max_pressure"],
+            "min_cable_force": metrics[f"{side}_min_cable_force"],
+        }
+        out += [f"{side} pump: {reason}" for reason in flags(pump_metrics, domain)]
+    return tuple(out)
+
+
+def _pump_sides(scene: LoopScene) -> tuple[str, ...]:
+    return tuple(side for side, (_, ventricle, _, _) in SIDES.items() if ventricle in scene.pumps)
+
+
+def loop_member_results(
+    scene: LoopScene, labels, solution: BeatSolution, domain: Domain | None = None
+) -> tuple[MemberResult, ...]:
+    """Records of a :func:`~cardiosoft.loop_batch.solve_loop` solution, one per member."""
+    domain = Domain() if domain is None else domain
+    out = []
+    for i, label in enumerate(labels):
+        metrics = _flat(solution.metrics, i)
+        traces = (
+            {}
+            if solution.traces is None
+            else {k: np.asarray(v[i]) for k, v in solution.traces.items()}
+        )
+        message = solution.message(i)
+        out.append(
+            MemberResult(
+                label,
+                None,
+                message == "ok",
+                message,
+                int(solution.beats[i]),
+                float(solution.residual[i]),
+                float(solution.volume_drift[i]),
+                metrics,
+                traces,
+                loop_flags(metrics, _pump_sides(scene), domain),
+            )
+        )
+    return tuple(out)
+
+
+def configure_loop(
+    scene: LoopScene, *, omega=None, shortening=None, bpm=None, afterload=None, accuracy=None
+) -> LoopScene:
+    """The closed-loop scene with the user's overrides (user units): ``bpm``; ``omega`` and
+    ``shortening`` set every soft pump's design; ``accuracy`` the preset."""
+    if afterload is not None:
+        raise ValueError(
+            f"afterload: scene {scene.name} is a closed loop, whose afterload is its own "
+            "circulation; --afterload sets water-column heads"
+        )
+    numbers = {"bpm": bpm} if bpm is not None else {}
+    for name, value in (("omega", omega), ("shortening", shortening)):
+        if value is not None:
+            if not scene.pumps:
+                raise ValueError(f"{name}: scene {scene.name} has no soft pump to design")
+            numbers |= {f"{c}.{name}": float(value) for c in scene.pumps}
+    if numbers:
+        numbers = {k: float(v) for k, v in numbers.items()}
+        loop_members(scene, numbers)  # checks the ranges, naming the number's path
+        scene = scene.with_numbers(numbers)
+    if accuracy is not None:
+        scene = scene.replace(accuracy=accuracy)
+    return scene
+
+
+def run_loop(
+    scene: LoopScene,
+    *,
+    beats=None,
+    steady="beats",
+    max_steps=None,
+    pump: PumpSurrogate | None = None,
+) -> RunResult:
+    """Simulate a closed-loop scene (:func:`cardiosoft.run`'s twin): one member, its records."""
+    config = None
+    if max_steps is not None:
+        from cardiosoft._validate import check_range
+
+        if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer):
+            raise ValueError(f"max_steps = {max_steps!r}: allowed a whole number in [100, 1e7]")
+        check_range("max_steps", max_steps, "steps", 100, 1e7)
+        config = dataclasses.replace(loop_config(scene), max_steps=int(max_steps))
+    pump = load() if pump is None else pump
+    solution = solve_loop(scene, beats=beats, steady=steady, pump=pump, config=config)
+    return RunResult(scene, loop_member_results(scene, [scene.name], solution, pump.domain))
+
+
+def _none_if_nan(value):
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def loop_summary_records(result: RunResult) -> list[dict]:
+    """One JSON-ready record per member in user units (``summary.json``): per side SV, EDV,
+    ESV, EF, CO, the net output, arterial pressures, mean atrial pressure, a pump's peak force
+    and cable work; the pulmonary and systemic volumes; the run's state and flags."""
+    records = []
+    for m in result.members:
+        x = m.metrics
+        record = {"label": m.label, "bpm": result.scene.bpm}
+        for side, artery, atrium in (("left", "aortic", "la"), ("right", "pulmonary", "ra")):
+            record |= {
+                f"{side}_sv_ml": x[f"{side}_stroke_volume"] / ml,
+                f"{side}_edv_ml": x[f"{side}_edv"] / ml,
+                f"{side}_esv_ml": x[f"{side}_esv"] / ml,
+                f"{side}_ef": x[f"{side}_ejection_fraction"],
+                f"{side}_co_l_min": x[f"{side}_cardiac_output"] / ml * 60 / 1000,
+                f"{side}_net_output_l_min": x[f"{side}_net_output"] / ml * 60 / 1000,
+                f"{artery}_systolic_mmHg": x[f"{side}_arterial_systolic"] / mmHg,
+                f"{artery}_diastolic_mmHg": x[f"{side}_arterial_diastolic"] / mmHg,
+                f"{artery}_mean_mmHg": x[f"{side}_arterial_mean"] / mmHg,
+                f"{atrium}_mean_mmHg": x[f"{side}_atrial_mean"] / mmHg,
+                f"{side}_peak_force_N": x[f"{side}_peak_force"],
+                f"{side}_cable_work_J": x[f"{side}_cable_work"],
+            }
+        record |= {
+            "pulmonary_volume_ml": x["pulmonary_volume"] / ml,
+            "systemic_volume_ml": x["systemic_volume"] / ml,
+            "total_volume_ml": x["total_volume"] / ml,
+            "beats": m.beats,
+            "steady_residual": m.residual,
+            "volume_drift": m.volume_drift,
+            "ok": m.ok,
+            "message": m.message,
+            "flags": list(m.flags),
+        }
+        records.append({k: _none_if_nan(v) for k, v in record.items()})
+    return records
+
+
+_COLUMNS = (  # header, unit, record key with {side}, {artery}, {atrium}; format
+    ("SV", "ml", "{side}_sv_ml", ".1f"),
+    ("EDV", "ml", "{side}_edv_ml", ".1f"),
+    ("ESV", "ml", "{side}_esv_ml", ".1f"),
+    ("EF", "-", "{side}_ef", ".2f"),
+    ("CO", "l/min", "{side}_co_l_min", ".2f"),
+    ("arterial sys/dia", "mmHg", "{artery}_systolic_mmHg|{artery}_diastolic_mmHg", ".0f"),
+    ("mean", "mmHg", "{artery}_mean_mmHg", ".1f"),
+    ("atrial mean", "mmHg", "{atrium}_mean_mmHg", ".1f"),
+    ("peak force", "N", "{side}_peak_force_N", ".1f"),
+)
+
+
+def loop_table(records: list[dict]) -> str:
+    """The printed table: a row per side of each member (left: aorta, LA; right: pulmonary
+    artery, RA)."""
+
+    def cell(record, key, fmt):
+        values = [record.get(k) for k in key.split("|")]
+        return "/".join("-" if v is None else format(v, fmt) for v in values)
+
+    head = ["side", *(c[0] for c in _COLUMNS)]
+    units = ["", *(c[1] for c in _COLUMNS)]
+    rows = []
+    for r in records:
+        for side, artery, atrium in (("left", "aortic", "la"), ("right", "pulmonary", "ra")):
+            keys = [c[2].format(side=side, artery=artery, atrium=atrium) for c in _COLUMNS]
+            rows.append([side, *(cell(r, k, c[3]) for k, c in zip(keys, _COLUMNS, strict=True))])
+    widths = [max(len(x) for x in col) for col in zip(head, units, *rows, strict=True)]
+    lines = [head, units, *rows]
+    return "\n".join(
+        "  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in lines
+    )
+
+
+def loop_trace_columns(traces: dict) -> list[tuple[str, str, float]]:
+    """``traces.csv`` columns of a closed-loop member: (header, trace key, unit scale)."""
+    out = [("time_s", "time", 1.0)]
+    for key in sorted(k for k in traces if k != "time"):
+        if key.endswith("_pressure"):
+            out.append((f"{key}_mmHg", key, mmHg))
+        elif key.endswith("_volume"):
+            out.append((f"{key}_ml", key, ml))
+        elif key.endswith("_flow"):
+            out.append((f"{key}_ml_per_s", key, ml))
+        elif key.endswith("_pull"):
+            out.append((f"{key}_mm", key, mm))
+        elif key.endswith("_cable_force"):
+            out.append((f"{key}_N", key, 1.0))
+    return out
