@@ -76,8 +76,10 @@ class SideMetrics(eqx.Module):
     cardiac_output: jax.Array
     """SV / period (m^3/s)."""
     net_output: jax.Array
-    """Mean flow through the outlet valve (m^3/s): the cardiac output net of the closed valve's
-    leak. At the periodic steady state the same on both sides (mass balance)."""
+    """Mean flow out of the side's arterial compartment into its circulation (m^3/s): the
+    cardiac output net of the valves' backflow. At the periodic steady state the same on both
+    sides and equal to the mean flow through every valve (mass balance); the arterial flow is
+    a state, smooth, so its mean is accurate from the samples."""
     arterial_systolic: jax.Array
     """Largest arterial pressure (Pa): aortic (left), pulmonary arterial (right)."""
     arterial_diastolic: jax.Array
@@ -118,7 +120,7 @@ class LoopMetrics(eqx.Module):
 
 
 def _side(loop: ClosedLoop, ts, s, side: str) -> SideMetrics:
-    atrium, ventricle, artery, valve = SIDES[side]
+    atrium, ventricle, artery, _ = SIDES[side]
     period = ts[-1] - ts[0]
     volume, pressure = s[f"{ventricle}_volume"], s[f"{ventricle}_pressure"]
     edv, esv = jnp.max(volume), jnp.min(volume)
@@ -135,7 +137,7 @@ def _side(loop: ClosedLoop, ts, s, side: str) -> SideMetrics:
         stroke_volume=edv - esv,
         ejection_fraction=(edv - esv) / edv,
         cardiac_output=(edv - esv) / period,
-        net_output=trapezoid(s[f"{valve}_flow"], ts) / period,
+        net_output=trapezoid(s[f"{artery}_flow"], ts) / period,
         arterial_systolic=jnp.max(s[f"{artery}_pressure"]),
         arterial_diastolic=jnp.min(s[f"{artery}_pressure"]),
         arterial_mean=trapezoid(s[f"{artery}_pressure"], ts) / period,

@@ -351,7 +351,7 @@ def number_key(scene: LoopScene, path: str) -> _Number:
     """The key (unit, range) of the number at ``path`` of ``scene`` (:func:`loop_numbers`)."""
     table, _, field = path.partition(".")
     if path == "bpm":
-        kind = "heart"
+        kind, field = "heart", path
     elif table in CHAMBERS:
         kind = getattr(scene, table).kind
     elif table in VESSELS:
