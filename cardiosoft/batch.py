@@ -258,6 +258,12 @@ def _members(scene: Scene, omega, shortening, bpm_value, afterload) -> dict:
     check_range("omega", values["omega"], "", *RANGES["omega"])
     check_range("shortening C", values["shortening"], "", *RANGES["shortening"])
     check_range("bpm", values["bpm"], "bpm", *RANGES["bpm"], lo_open=True)
+    return broadcast_members(values)
+
+
+def broadcast_members(values: dict) -> dict:
+    """Member values (scalars or 1-D arrays) as float arrays broadcast to one batch axis; a
+    ``ValueError`` names the one that does not fit (also for a closed loop's members)."""
     ftype = jnp.result_type(float)
     arrays = {k: jnp.asarray(v, dtype=ftype) for k, v in values.items()}
     for k, v in arrays.items():
@@ -441,14 +447,7 @@ def solve_beats(
         )
     if scene.static:
         raise ValueError(f"scene {scene.name} is static: use solve_static")
-    if save not in SAVE_MODES:
-        raise ValueError(f"save = {save!r}: allowed {', '.join(SAVE_MODES)}")
-    if steady not in STEADY_METHODS:
-        raise ValueError(f"steady = {steady!r}: allowed {', '.join(STEADY_METHODS)}")
-    if beats is not None:
-        if isinstance(beats, bool) or not isinstance(beats, int | np.integer):
-            raise ValueError(f"beats = {beats!r}: allowed a whole number in [1, 500]")
-        check_range("beats", beats, "beats", 1, 500)
+    check_solve_options(save, steady, beats)
     members = _members(scene, omega, shortening, bpm, afterload)
     pump = load() if pump is None else pump
     config = default_config(scene) if config is None else config
@@ -484,6 +483,18 @@ def _solve_loop_scene(
         pump=pump,
         config=config,
     )
+
+
+def check_solve_options(save, steady, beats) -> None:
+    """``ValueError`` unless ``save``, ``steady`` and ``beats`` are ones a batch solve takes."""
+    if save not in SAVE_MODES:
+        raise ValueError(f"save = {save!r}: allowed {', '.join(SAVE_MODES)}")
+    if steady not in STEADY_METHODS:
+        raise ValueError(f"steady = {steady!r}: allowed {', '.join(STEADY_METHODS)}")
+    if beats is not None:
+        if isinstance(beats, bool) or not isinstance(beats, int | np.integer):
+            raise ValueError(f"beats = {beats!r}: allowed a whole number in [1, 500]")
+        check_range("beats", beats, "beats", 1, 500)
 
 
 def solve_orbit(

@@ -15,6 +15,7 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.batch import default_config, solve_beats, solve_static
+from cardiosoft.loop_batch import loop_config
 from cardiosoft.loop_results import configure_loop, run_loop
 from cardiosoft.loop_scene import LoopScene
 from cardiosoft.pump import PumpSurrogate, load
@@ -106,22 +107,23 @@ def run(
     scene = configure(
         scene, omega=omega, shortening=shortening, bpm=bpm, afterload=afterload, accuracy=accuracy
     )
-    if isinstance(scene, LoopScene):
-        if energy:
-            raise ValueError(
-                f"energy: scene {scene.name} is a closed loop, which keeps no energy account yet"
-            )
-        return run_loop(scene, beats=beats, steady=steady, max_steps=max_steps, pump=pump)
-    if scene.afterload.has_heads:
-        labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
-    else:
-        labels = [scene.name]
     config = None
     if max_steps is not None:
         if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer):
             raise ValueError(f"max_steps = {max_steps!r}: allowed a whole number in [100, 1e7]")
         check_range("max_steps", max_steps, "steps", 100, 1e7)
-        config = dataclasses.replace(default_config(scene), max_steps=int(max_steps))
+        preset = loop_config if isinstance(scene, LoopScene) else default_config
+        config = dataclasses.replace(preset(scene), max_steps=int(max_steps))
+    if isinstance(scene, LoopScene):
+        if energy:
+            raise ValueError(
+                f"energy: scene {scene.name} is a closed loop, which keeps no energy account yet"
+            )
+        return run_loop(scene, beats=beats, steady=steady, config=config, pump=pump)
+    if scene.afterload.has_heads:
+        labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
+    else:
+        labels = [scene.name]
     return _simulate(scene, labels, {}, beats, steady, pump, energy, config)
 
 

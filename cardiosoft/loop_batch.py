@@ -31,10 +31,11 @@ import numpy as np
 from cardiosoft._validate import check_range
 from cardiosoft.batch import (
     GUESS_BEATS,
-    SAVE_MODES,
-    STEADY_METHODS,
     BeatSolution,
     _shard,
+    _solution,
+    broadcast_members,
+    check_solve_options,
 )
 from cardiosoft.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
@@ -225,9 +226,8 @@ def _split(scene: LoopScene):
 
 def loop_members(scene: LoopScene, members: dict) -> dict:
     """The member values ``{path: values}`` (SI) of ``scene``, checked against their ranges
-    where concrete (``ValueError`` naming the path), broadcast to one batch axis."""
-    ftype = jnp.result_type(float)
-    arrays = {}
+    where concrete (``ValueError`` naming the path), broadcast to one batch axis (the scene's
+    rate, one member, when there are none)."""
     for path, values in members.items():
         key = number_key(scene, path)  # raises for a path the scene does not have
         if not isinstance(values, jax.core.Tracer):
@@ -240,20 +240,7 @@ def loop_members(scene: LoopScene, members: dict) -> dict:
                 lo_open=key.lo_open,
                 scale=key.scale,
             )
-        arrays[path] = jnp.asarray(values, dtype=ftype)
-        if arrays[path].ndim > 1 or arrays[path].size == 0:
-            raise ValueError(f"{path}: a scalar or a non-empty 1-D array of members")
-    try:
-        shape = jnp.broadcast_shapes(*(v.shape for v in arrays.values()), (1,))
-    except ValueError:
-        sizes = ", ".join(f"{k} {v.shape[0]}" for k, v in arrays.items() if v.ndim)
-        raise ValueError(
-            f"members: {sizes} values do not broadcast to one batch; give scalars or arrays "
-            "of one common length"
-        ) from None
-    if not arrays:
-        arrays = {"bpm": jnp.asarray(scene.bpm, dtype=ftype)}
-    return {k: jnp.broadcast_to(v, shape) for k, v in arrays.items()}
+    return broadcast_members(members or {"bpm": scene.bpm})
 
 
 def solve_loop(
@@ -290,14 +277,7 @@ def solve_loop(
     **Returns:** a :class:`~cardiosoft.batch.BeatSolution` whose ``metrics`` are
     :class:`LoopMetrics`; nothing is raised for a member that fails or is not steady.
     """
-    if save not in SAVE_MODES:
-        raise ValueError(f"save = {save!r}: allowed {', '.join(SAVE_MODES)}")
-    if steady not in STEADY_METHODS:
-        raise ValueError(f"steady = {steady!r}: allowed {', '.join(STEADY_METHODS)}")
-    if beats is not None:
-        if isinstance(beats, bool) or not isinstance(beats, int | np.integer):
-            raise ValueError(f"beats = {beats!r}: allowed a whole number in [1, 500]")
-        check_range("beats", beats, "beats", 1, 500)
+    check_solve_options(save, steady, beats)
     members = dict(members or {})
     if bpm is not None:
         members["bpm"] = bpm
@@ -316,21 +296,7 @@ def solve_loop(
     metrics, traces, out = _solve(
         structure, numbers, pump, _shard(members), max_beats, tol, config, save, method
     )
-    return BeatSolution(
-        members=members,
-        metrics=metrics,
-        traces=traces,
-        y0=out.y0,
-        beats=out.beats,
-        residual=out.residual,
-        volume_drift=out.volume_drift,
-        result=out.result,
-        num_steps=out.num_steps,
-        newton_steps=out.newton_steps,
-        steady_tol=float(scene.steady_tol),
-        fixed_beats=beats is not None,
-        max_steps=config.max_steps,
-    )
+    return _solution(scene, members, config, metrics, traces, out, beats is not None)
 
 
 def loop_config(scene: LoopScene) -> SolverConfig:

@@ -34,10 +34,11 @@ import math
 import numpy as np
 
 from cardiosoft.batch import BeatSolution
-from cardiosoft.loop_batch import SIDES, loop_config, loop_members, solve_loop
+from cardiosoft.loop_batch import SIDES, loop_members, solve_loop
 from cardiosoft.loop_scene import LoopScene
 from cardiosoft.pump import Domain, PumpSurrogate, load
 from cardiosoft.results import MemberResult, RunResult, flags
+from cardiosoft.solve import SolverConfig
 from cardiosoft.units import ml, mm, mmHg
 
 __all__ = [
@@ -182,18 +183,11 @@ def run_loop(
     *,
     beats=None,
     steady="beats",
-    max_steps=None,
+    config: SolverConfig | None = None,
     pump: PumpSurrogate | None = None,
 ) -> RunResult:
-    """Simulate a closed-loop scene (:func:`cardiosoft.run`'s twin): one member, its records."""
-    config = None
-    if max_steps is not None:
-        from cardiosoft._validate import check_range
-
-        if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer):
-            raise ValueError(f"max_steps = {max_steps!r}: allowed a whole number in [100, 1e7]")
-        check_range("max_steps", max_steps, "steps", 100, 1e7)
-        config = dataclasses.replace(loop_config(scene), max_steps=int(max_steps))
+    """Simulate a closed-loop scene, one member, and its records: what :func:`cardiosoft.run`
+    does with one (it validates the arguments, :func:`configure_loop` the overrides)."""
     pump = load() if pump is None else pump
     solution = solve_loop(scene, beats=beats, steady=steady, pump=pump, config=config)
     return RunResult(scene, loop_member_results(scene, [scene.name], solution, pump.domain))
