@@ -29,13 +29,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from cardiosoft._validate import check_range
-from cardiosoft.batch import (
+from cardiosoft.beat_solution import (
     GUESS_BEATS,
     BeatSolution,
-    _shard,
-    _solution,
     broadcast_members,
     check_solve_options,
+    shard,
+    solution,
 )
 from cardiosoft.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
@@ -294,9 +294,9 @@ def solve_loop(
     structure, numbers = _split(scene)
     method = "beats" if beats is not None else steady
     metrics, traces, out = _solve(
-        structure, numbers, pump, _shard(members), max_beats, tol, config, save, method
+        structure, numbers, pump, shard(members), max_beats, tol, config, save, method
     )
-    return _solution(scene, members, config, metrics, traces, out, beats is not None)
+    return solution(scene, members, config, metrics, traces, out, beats is not None)
 
 
 def loop_config(scene: LoopScene) -> SolverConfig:

@@ -25,17 +25,17 @@ import dataclasses
 import math
 from typing import ClassVar
 
+from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES, CablePull
 from cardiosoft.circulation import ArctanValve, Valve
 from cardiosoft.closed_loop import CHAMBERS, VALVES, VESSELS, ClosedLoop
 from cardiosoft.heart import Activation, ElastanceChamber, PumpChamber, Vessel
 from cardiosoft.pump import Domain, PumpSurrogate
-from cardiosoft.scene import ACCURACY, LOOP_SCENE_NAMES, _Number, _Reader
+from cardiosoft.solve import ACCURACY_PRESETS as ACCURACY
 from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s2_per_ml, mmHg_s_per_ml
 
 __all__ = [
     "LOOP_KEYS",
-    "LOOP_SCENE_NAMES",
     "VALVE_LAWS",
     "ElastanceSpec",
     "LoopScene",

@@ -157,7 +157,7 @@ def _heading(scene) -> str:
 
 def _table(records, scene, paper) -> str:
     if _is_loop(scene):
-        from cardiosoft.loop_results import loop_table
+        from cardiosoft.loop_records import loop_table
 
         return loop_table(records)
     columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
@@ -232,7 +232,7 @@ def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> li
             ("column_volume_ml", "column_volume", ml),
         ]
         if _is_loop(result.scene):
-            from cardiosoft.loop_results import loop_trace_columns
+            from cardiosoft.loop_records import loop_trace_columns
 
             columns = loop_trace_columns(result.members[0].traces)
         with open(staging / "traces.csv", "w", newline="") as f:
