@@ -65,12 +65,23 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
+from cardiosoft.beat_solution import (
+    GUESS_BEATS,
+    SAVE_MODES,
+    STEADY_METHODS,
+    BeatSolution,
+    broadcast_members,
+    check_solve_options,
+)
+from cardiosoft.beat_solution import shard as _shard
+from cardiosoft.beat_solution import solution as _solution
 from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
-from cardiosoft.metrics import BeatMetrics, beat_metrics
+from cardiosoft.loop_batch import solve_loop
+from cardiosoft.loop_scene import LoopScene
+from cardiosoft.metrics import beat_metrics
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
 from cardiosoft.solve import SolverConfig, orbit_beat, periodic_beats, preset, shoot_periodic
@@ -80,6 +91,7 @@ from cardiosoft.units import RHO_WATER, G, bpm, mmHg
 __all__ = [
     "SAMPLES_PER_BEAT",
     "SAVE_MODES",
+    "STEADY_METHODS",
     "BeatSolution",
     "StaticSolution",
     "default_config",
@@ -93,11 +105,6 @@ PULL_SAMPLES = 201
 """Samples of the pull phase; the force curve, peak force and mechanical work use them."""
 SAMPLES_PER_BEAT = PULL_SAMPLES + 200
 """Samples of one beat: the pull phase (its end on the grid), then 200 over the rest."""
-SAVE_MODES = ("traces", "metrics", "state")
-STEADY_METHODS = ("beats", "shooting")
-"""How the periodic steady state is reached: beat after beat, or by Newton shooting."""
-GUESS_BEATS = 3
-"""Beats from rest before Newton shooting starts from their end."""
 MEMBER_FIELDS = ("omega", "shortening", "bpm", "afterload")
 """What may differ between the members of one batch."""
 # Scene fields that are numbers (or tuples of numbers) of the physics: array leaves of the solve.
@@ -169,72 +176,6 @@ def default_config(scene: Scene) -> SolverConfig:
     return dataclasses.replace(config, adjoint=diffrax.ForwardMode())
 
 
-class BeatSolution(eqx.Module):
-    """What :func:`solve_beats` returns; every array has the batch axis first (SI).
-
-    - ``members``: the member values, ``{"omega", "shortening", "bpm", "afterload"}`` (the
-      afterload, a column head in Pa, is NaN for a Windkessel scene).
-    - ``metrics``: the last beat's :class:`~cardiosoft.metrics.BeatMetrics` (None with
-      ``save="state"``).
-    - ``traces``: with ``save="traces"``, the last beat: ``time`` (s, from 0 to the period),
-      ``volume`` and the other states, and every signal of :meth:`PumpCircuit.signals`;
-      ``None`` with ``save="metrics"`` or ``"state"``.
-    - ``y0``: the state at the start of the last beat (SI, a dict by the state's names): on a
-      steady member a point of its periodic orbit, where :func:`solve_orbit` starts.
-    - ``beats``: beats integrated; ``residual``: the cycle-to-cycle change of the last beat
-      (ml, ml/s or mmHg); ``volume_drift``: the largest relative change of the total fluid
-      volume; ``result``: diffrax's result; ``num_steps``: solver steps of the last beat;
-      ``newton_steps``: Newton iterations of ``steady="shooting"`` (0 otherwise).
-    - ``steady_tol`` (static): the scene's tolerance ``residual`` is held to, also with a fixed
-      number of beats (``fixed_beats``), which may end before the steady state.
-    """
-
-    members: dict
-    metrics: BeatMetrics | None
-    traces: dict | None
-    y0: dict
-    beats: jax.Array
-    residual: jax.Array
-    volume_drift: jax.Array
-    result: diffrax.RESULTS
-    num_steps: jax.Array
-    newton_steps: jax.Array
-    steady_tol: float = eqx.field(static=True)
-    fixed_beats: bool = eqx.field(static=True, default=False)
-    max_steps: int = eqx.field(static=True, default=0)
-
-    @property
-    def succeeded(self) -> jax.Array:
-        """Per member: the solver finished every beat."""
-        return diffrax.is_successful(self.result)
-
-    @property
-    def steady(self) -> jax.Array:
-        """Per member: at its periodic steady state, the last beat's cycle-to-cycle change within
-        the scene's tolerance (also when a fixed number of beats was asked for)."""
-        return self.residual <= self.steady_tol
-
-    def message(self, i: int) -> str:
-        """Member ``i`` in words: ``"ok"``, not steady, or why the solver failed."""
-        beats = int(self.beats[i])
-        if not bool(self.succeeded[i]):
-            reason = diffrax.RESULTS[jax.tree_util.tree_map(lambda a: a[i], self.result)]
-            hint = ""
-            if "max_steps" in str(reason):
-                hint = (
-                    f" ({self.max_steps} per beat now: run(max_steps=...), --max-steps; or a "
-                    "looser accuracy preset)"
-                )
-            return f"solver failed in beat {beats}: {str(reason).strip()}{hint}"
-        if not bool(self.steady[i]):
-            return (
-                f"not steady after {beats} beats (cycle change {float(self.residual[i]):.3g} > "
-                f"{self.steady_tol:g}): a transient, not the periodic steady state"
-                + ("" if self.fixed_beats else "; try steady='shooting' (--steady shooting)")
-            )
-        return "ok"
-
-
 def _members(scene: Scene, omega, shortening, bpm_value, afterload) -> dict:
     """The member values, validated where concrete, broadcast to one batch axis."""
     if scene.afterload.has_heads:
@@ -257,23 +198,7 @@ def _members(scene: Scene, omega, shortening, bpm_value, afterload) -> dict:
     check_range("omega", values["omega"], "", *RANGES["omega"])
     check_range("shortening C", values["shortening"], "", *RANGES["shortening"])
     check_range("bpm", values["bpm"], "bpm", *RANGES["bpm"], lo_open=True)
-    ftype = jnp.result_type(float)
-    arrays = {k: jnp.asarray(v, dtype=ftype) for k, v in values.items()}
-    for k, v in arrays.items():
-        if v.ndim > 1:
-            raise ValueError(f"{k}: a scalar or a 1-D array of members, got shape {v.shape}")
-    empty = [k for k, v in arrays.items() if v.size == 0]
-    if empty:
-        raise ValueError(f"{empty[0]}: the batch is empty; give at least one member")
-    try:
-        shape = jnp.broadcast_shapes(*(v.shape for v in arrays.values()), (1,))
-    except ValueError:
-        sizes = ", ".join(f"{k} {v.shape[0]}" for k, v in arrays.items() if v.ndim)
-        raise ValueError(
-            f"members: {sizes} values do not broadcast to one batch; give scalars or "
-            "arrays of one common length"
-        ) from None
-    return {k: jnp.broadcast_to(v, shape) for k, v in arrays.items()}
+    return broadcast_members(values)
 
 
 def split_scene(scene: Scene, *, keep_steady: bool = False):
@@ -294,17 +219,6 @@ def split_scene(scene: Scene, *, keep_steady: bool = False):
         **steady,
     )
     return structure, numbers
-
-
-def _shard(tree):
-    """Spread the batch over all devices when it divides evenly (one device: unchanged)."""
-    devices = jax.devices()
-    n = jax.tree_util.tree_leaves(tree)[0].shape[0]
-    if len(devices) < 2 or n % len(devices):
-        return tree
-    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
-    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-    return jax.tree_util.tree_map(lambda a: jax.device_put(a, sharding), tree)
 
 
 def _save_times(actuation: CablePull):
@@ -409,6 +323,9 @@ def solve_beats(
     **Arguments:**
 
     - ``scene``: a :class:`~cardiosoft.scene.Scene`, a shipped scene's name or a scene file.
+      A closed-loop scene (:class:`~cardiosoft.loop_scene.LoopScene`) goes to
+      :func:`cardiosoft.loop_batch.solve_loop` (``omega`` and ``shortening`` set every pump
+      of it; its metrics are :class:`~cardiosoft.loop_batch.LoopMetrics`).
     - ``omega``, ``shortening``: the design (dimensionless); ``bpm``: beats per minute;
       ``afterload``: column head (Pa) of a water-column scene. Scalars or 1-D arrays, broadcast
       to one batch axis; ``None`` keeps the scene's value(s).
@@ -430,17 +347,14 @@ def solve_beats(
     **Returns:** a :class:`BeatSolution`. Nothing is raised for a member that fails or is not
     steady: see ``succeeded``, ``steady`` and ``message(i)``. Bad input raises ``ValueError``.
     """
-    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene = scene if isinstance(scene, Scene | LoopScene) else load_scene(scene)
+    if isinstance(scene, LoopScene):
+        return _solve_loop_scene(
+            scene, omega, shortening, bpm, afterload, beats, save, steady, energy, pump, config
+        )
     if scene.static:
         raise ValueError(f"scene {scene.name} is static: use solve_static")
-    if save not in SAVE_MODES:
-        raise ValueError(f"save = {save!r}: allowed {', '.join(SAVE_MODES)}")
-    if steady not in STEADY_METHODS:
-        raise ValueError(f"steady = {steady!r}: allowed {', '.join(STEADY_METHODS)}")
-    if beats is not None:
-        if isinstance(beats, bool) or not isinstance(beats, int | np.integer):
-            raise ValueError(f"beats = {beats!r}: allowed a whole number in [1, 500]")
-        check_range("beats", beats, "beats", 1, 500)
+    check_solve_options(save, steady, beats)
     members = _members(scene, omega, shortening, bpm, afterload)
     pump = load() if pump is None else pump
     config = default_config(scene) if config is None else config
@@ -451,6 +365,29 @@ def solve_beats(
         structure, numbers, pump, _shard(members), max_beats, tol, config, save, method, energy
     )
     return _solution(scene, members, config, metrics, traces, out, beats is not None)
+
+
+def _solve_loop_scene(
+    scene, omega, shortening, bpm, afterload, beats, save, steady, energy, pump, config
+) -> BeatSolution:
+    """:func:`solve_beats` of a closed-loop scene (:func:`cardiosoft.loop_batch.solve_loop`)."""
+    if afterload is not None:
+        raise ValueError(f"afterload: scene {scene.name} is a closed loop, with no column head")
+    if energy:
+        raise ValueError(
+            f"energy: scene {scene.name} is a closed loop, which keeps no energy account yet"
+        )
+    return solve_loop(
+        scene,
+        bpm=bpm,
+        omega=omega,
+        shortening=shortening,
+        beats=beats,
+        save=save,
+        steady=steady,
+        pump=pump,
+        config=config,
+    )
 
 
 def solve_orbit(
@@ -518,24 +455,6 @@ def solve_orbit(
 
 def _names(states) -> str:
     return ", ".join(sorted(_flat_states(states)))
-
-
-def _solution(scene, members, config, metrics, traces, out, fixed_beats) -> BeatSolution:
-    return BeatSolution(
-        members=members,
-        metrics=metrics,
-        traces=traces,
-        y0=out.y0,
-        beats=out.beats,
-        residual=out.residual,
-        volume_drift=out.volume_drift,
-        result=out.result,
-        num_steps=out.num_steps,
-        newton_steps=out.newton_steps,
-        steady_tol=float(scene.steady_tol),
-        fixed_beats=fixed_beats,
-        max_steps=config.max_steps,
-    )
 
 
 class StaticSolution(eqx.Module):

@@ -37,7 +37,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from cardiosoft._validate import check_positive, check_range
+from cardiosoft._validate import _is_traced, check_positive, check_range
 from cardiosoft.units import (
     MU_WATER,
     RHO_WATER,
@@ -52,6 +52,7 @@ from cardiosoft.units import (
 __all__ = [
     "AbstractAfterload",
     "AbstractPreload",
+    "ArctanValve",
     "AtrialCompliance",
     "AtrialSource",
     "Bench",
@@ -494,6 +495,52 @@ class Valve(eqx.Module):
         if self.kind == "ideal":
             return jnp.maximum(dp, 0.0) / R
         return dp * jax.nn.sigmoid(dp / self.smoothing) / R
+
+
+class ArctanValve(eqx.Module):
+    """The valve law of Regazzoni et al. 2022 (J. Comput. Phys. 457, 111083; the closed-loop
+    model's valves; ``notes/closed-loop-regazzoni.md``): a resistance switched on a log scale.
+
+    ``q = dp / R(dp)`` (m^3/s for a drop ``dp = p_up - p_down`` in Pa), with
+    ``log R = log R_min + (log R_max - log R_min) H(-dp)`` and the smooth step
+    ``H(x) = 1/2 + arctan(pi k x / 2) / pi``: open (``R -> R_min``) for ``dp >> 1/k``, closed but
+    leaking (``R -> R_max``) for ``dp << -1/k``.
+
+    - ``min_resistance``, ``max_resistance``: R_min < R_max (Pa s/m^3); the paper's 0.0075 and
+      75006.2 mmHg s/ml.
+    - ``sharpness``: k (1/Pa); the paper's 200 per mmHg.
+
+    Passive (``dp q = dp^2 / R >= 0``, q = 0 at dp = 0) and smooth, with no branch that can give
+    NaN. Unlike :class:`Valve`'s smooth law it leaks a finite backflow however closed,
+    ``|dp| / R_max`` (a closed valve against 100 mmHg: 1.3e-3 ml/s), as the paper's does.
+    """
+
+    min_resistance: jax.Array = eqx.field(converter=jnp.asarray)
+    max_resistance: jax.Array = eqx.field(converter=jnp.asarray)
+    sharpness: jax.Array = eqx.field(converter=jnp.asarray, default=200.0 / mmHg)
+
+    def __check_init__(self):
+        _resistance("valve minimum resistance Rmin", self.min_resistance)
+        _resistance("valve maximum resistance Rmax", self.max_resistance)
+        if not (_is_traced(self.min_resistance) or _is_traced(self.max_resistance)):
+            lo = float(jnp.max(self.min_resistance)) / _R
+            check_range(
+                "valve maximum resistance Rmax",
+                self.max_resistance,
+                "mmHg s/ml",
+                lo,
+                _INF,
+                lo_open=True,
+                scale=_R,
+            )
+        check_positive("valve switch sharpness", self.sharpness, "1/mmHg", scale=1.0 / mmHg)
+
+    def flow(self, dp) -> jax.Array:
+        """Forward flow (m^3/s) for a pressure drop ``dp`` (Pa) across the valve."""
+        closed = 0.5 + jnp.arctan(0.5 * jnp.pi * self.sharpness * -dp) / jnp.pi
+        log_min = jnp.log(self.min_resistance)
+        log_r = log_min + (jnp.log(self.max_resistance) - log_min) * closed
+        return dp * jnp.exp(-log_r)
 
 
 class AbstractPreload(eqx.Module):

@@ -15,6 +15,9 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.batch import default_config, solve_beats, solve_static
+from cardiosoft.loop_batch import loop_config
+from cardiosoft.loop_results import configure_loop, run_loop
+from cardiosoft.loop_scene import LoopScene
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.results import RunResult, member_results
 from cardiosoft.scene import ACCURACY, RANGES, Scene, load_scene
@@ -27,7 +30,16 @@ def configure(
     scene="bench-dynamic", *, omega=None, shortening=None, bpm=None, afterload=None, accuracy=None
 ) -> Scene:
     """The scene with the user's overrides (user units), validated; see :func:`run`."""
-    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene = scene if isinstance(scene, Scene | LoopScene) else load_scene(scene)
+    if isinstance(scene, LoopScene):
+        return configure_loop(
+            scene,
+            omega=omega,
+            shortening=shortening,
+            bpm=bpm,
+            afterload=afterload,
+            accuracy=accuracy,
+        )
     changes = {}
     for name, value, unit, field in (
         ("omega", omega, "", "omega"),
@@ -71,7 +83,9 @@ def run(
 
     **Arguments** (user units; None keeps the scene's value):
 
-    - ``scene``: a shipped scene name, a path to a scene file, or a :class:`Scene`.
+    - ``scene``: a shipped scene name, a path to a scene file, or a :class:`Scene`; a
+      closed-loop scene (``heart``, ``soft-lv``, ``soft-rv``, ``tah``) is run by
+      :func:`cardiosoft.loop_results.run_loop` (``omega`` and ``shortening`` set every pump).
     - ``omega``: helix parameter, [0, 6]; ``shortening``: C, [0, 0.65].
     - ``bpm``: beats per minute, (0, 300].
     - ``afterload``: column head(s) in mmHg, [0, 150] (water-column scenes).
@@ -93,16 +107,23 @@ def run(
     scene = configure(
         scene, omega=omega, shortening=shortening, bpm=bpm, afterload=afterload, accuracy=accuracy
     )
-    if scene.afterload.has_heads:
-        labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
-    else:
-        labels = [scene.name]
     config = None
     if max_steps is not None:
         if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer):
             raise ValueError(f"max_steps = {max_steps!r}: allowed a whole number in [100, 1e7]")
         check_range("max_steps", max_steps, "steps", 100, 1e7)
-        config = dataclasses.replace(default_config(scene), max_steps=int(max_steps))
+        preset = loop_config if isinstance(scene, LoopScene) else default_config
+        config = dataclasses.replace(preset(scene), max_steps=int(max_steps))
+    if isinstance(scene, LoopScene):
+        if energy:
+            raise ValueError(
+                f"energy: scene {scene.name} is a closed loop, which keeps no energy account yet"
+            )
+        return run_loop(scene, beats=beats, steady=steady, config=config, pump=pump)
+    if scene.afterload.has_heads:
+        labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
+    else:
+        labels = [scene.name]
     return _simulate(scene, labels, {}, beats, steady, pump, energy, config)
 
 
@@ -124,6 +145,11 @@ def run_designs(
     designs of one sweep alike: the batch runs until its slowest member reaches steady state.
     """
     scene = configure(scene, bpm=bpm, afterload=afterload, accuracy=accuracy)
+    if isinstance(scene, LoopScene):
+        raise ValueError(
+            f"scene {scene.name} is a closed loop: give its pumps' designs as members of "
+            "cardiosoft.loop_batch.solve_loop(members={'lv.omega': ...}) or run() one design"
+        )
     designs = [tuple(d) for d in designs]
     if not designs or any(len(d) != 2 for d in designs):
         raise ValueError(

@@ -92,3 +92,54 @@ def plot_fig10(result, path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=check_figure_path(path), dpi=110)
     plt.close(fig)
+
+
+def plot_closed_loop(result, path, native=None) -> None:
+    """A closed-loop run (:func:`cardiosoft.run` of ``heart``, ``soft-lv``, ``soft-rv``,
+    ``tah``): (a, b) the left and right ventricles' (or pumps') pressure-volume loops, over the
+    native heart's when ``native`` (a run of ``heart``) is given; (c) the pressures of the aorta,
+    the pulmonary artery and both atria over the beat; (d) the pumps' cable forces."""
+    from cardiosoft.units import ml, mmHg
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(2, 2, figsize=(9, 7), constrained_layout=True)
+    pumps = set(result.scene.pumps)
+    for m in (m for m in result.members if m.traces):
+        t = m.traces
+        for a, chamber, side in ((ax[0, 0], "lv", "left"), (ax[0, 1], "rv", "right")):
+            what = "soft pump" if chamber in pumps else "native"
+            a.plot(t[f"{chamber}_volume"] / ml, t[f"{chamber}_pressure"] / mmHg, label=what)
+            a.set_title(f"({'a' if side == 'left' else 'b'}) {side} ventricle", fontsize=10)
+        for name, label in (
+            ("ar_sys", "aorta"),
+            ("ar_pul", "pulmonary artery"),
+            ("la", "left atrium"),
+            ("ra", "right atrium"),
+        ):
+            ax[1, 0].plot(t["time"], t[f"{name}_pressure"] / mmHg, label=label)
+        for chamber in sorted(pumps):
+            ax[1, 1].plot(t["time"], t[f"{chamber}_cable_force"], label=f"{chamber.upper()} pump")
+    if native is not None:
+        for m in (m for m in native.members if m.traces):
+            for a, chamber in ((ax[0, 0], "lv"), (ax[0, 1], "rv")):
+                v, p = m.traces[f"{chamber}_volume"] / ml, m.traces[f"{chamber}_pressure"] / mmHg
+                a.plot(v, p, "k--", lw=1, label="native heart")
+    for a in (ax[0, 0], ax[0, 1]):
+        a.set(xlabel="volume [ml]", ylabel="pressure [mmHg]")
+        a.legend(fontsize=8)
+    ax[1, 0].set(xlabel="time in the beat [s]", ylabel="pressure [mmHg]")
+    ax[1, 0].set_title("(c) pressures over the last beat", fontsize=10)
+    ax[1, 0].legend(fontsize=8)
+    ax[1, 1].set(xlabel="time in the beat [s]", ylabel="cable force [N]")
+    ax[1, 1].set_title("(d) cable forces", fontsize=10)
+    if pumps:
+        ax[1, 1].legend(fontsize=8)
+    else:
+        ax[1, 1].text(
+            0.5, 0.5, "no soft pump", ha="center", va="center", transform=ax[1, 1].transAxes
+        )
+    s = result.scene
+    fig.suptitle(f"{s.name}: closed loop at {s.bpm:g} bpm")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=check_figure_path(path), dpi=110)
+    plt.close(fig)

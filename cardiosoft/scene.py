@@ -31,6 +31,7 @@ from typing import ClassVar
 
 import jax
 
+from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES
 from cardiosoft.circulation import (
     VALVE_KINDS,
@@ -42,6 +43,7 @@ from cardiosoft.circulation import (
     WaterColumn,
     Windkessel3,
 )
+from cardiosoft.loop_scene import LoopScene, parse_loop_scene
 from cardiosoft.pump import Domain
 from cardiosoft.solve import ACCURACY_PRESETS
 from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
@@ -49,6 +51,7 @@ from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
 __all__ = [
     "AFTERLOADS",
     "EFFECTS",
+    "LOOP_SCENE_NAMES",
     "RANGES",
     "SCENE_NAMES",
     "Scene",
@@ -126,6 +129,8 @@ the type."""
 EFFECTS = {tag: kind.effects + SHELL_EFFECTS for tag, kind in AFTERLOADS.items()}
 """The effects each afterload type allows."""
 SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")
+LOOP_SCENE_NAMES = ("heart", "soft-lv", "soft-rv", "tah")
+"""The shipped closed-loop scenes (``kind = "closed_loop"``, :mod:`cardiosoft.loop_scene`)."""
 ACCURACY = ACCURACY_PRESETS
 
 
@@ -180,26 +185,6 @@ class Scene:
 _R = mmHg_s_per_ml
 _C = ml_per_mmHg
 _DOMAIN = Domain()
-
-
-@dataclasses.dataclass(frozen=True)
-class _Number:
-    """One numeric key: where it lives in the file, its unit, its range, its Scene field."""
-
-    field: str
-    key: str  # "section.key" in the file
-    unit: str
-    lo: float
-    hi: float
-    lo_open: bool = False
-    scale: float = 1.0  # SI value of one user unit
-    default: float | None = None
-    index: int | None = None  # position in a tuple field
-    when: str = "always"  # "always", an afterload type, or "effect:NAME"
-
-    def allowed(self) -> str:
-        right = ")" if self.hi == math.inf else "]"
-        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{right} {self.unit}".rstrip()
 
 
 # Every numeric key of a scene file, with its allowed range: the one place ranges are written.
@@ -280,68 +265,6 @@ def _applies(when: str, afterload_type: str, effects) -> bool:
     if when.startswith("effect:"):
         return when.removeprefix("effect:") in effects
     return when == afterload_type
-
-
-class _Reader:
-    """Reads one table of a scene file, consuming keys and naming file and key in errors."""
-
-    def __init__(self, source: str, table: dict, prefix: str = ""):
-        self.source, self.table, self.prefix = source, dict(table), prefix
-        self.known: list[str] = []  # keys asked for, listed when an unknown key is found
-
-    def _where(self, key):
-        return f"{self.source}: key '{self.prefix}{key}'"
-
-    def pop(self, key, default=None):
-        self.known.append(key)
-        return self.table.pop(key, default)
-
-    def sub(self, key, required: bool) -> _Reader | None:
-        value = self.pop(key)
-        if value is None:
-            if required:
-                raise ValueError(f"{self._where(key)} is missing (a table [{key}])")
-            return None
-        if not isinstance(value, dict):
-            raise ValueError(f"{self._where(key)} = {value!r} must be a table [{key}]")
-        return _Reader(self.source, value, f"{self.prefix}{key}.")
-
-    def number(self, spec: _Number, key: str):
-        """The value(s) in SI; ranges are checked later, by :func:`_validated`."""
-        value = self.pop(key, spec.default)
-        what = "a list of numbers" if spec.field == "afterloads" else "a number"
-        if value is None:
-            raise ValueError(f"{self._where(key)} is missing; allowed: {what} in {spec.allowed()}")
-        values = value if spec.field == "afterloads" and isinstance(value, list) else [value]
-        if (
-            (spec.field == "afterloads" and not isinstance(value, list))
-            or not values
-            or any(isinstance(v, bool) or not isinstance(v, int | float) for v in values)
-        ):
-            raise ValueError(f"{self._where(key)} = {value!r}: allowed {what} in {spec.allowed()}")
-        converted = tuple(float(v) * spec.scale for v in values)
-        return converted if spec.field == "afterloads" else converted[0]
-
-    def choice(self, key, choices, default=None):
-        value = self.pop(key, default)
-        if value not in choices:
-            raise ValueError(f"{self._where(key)} = {value!r}: allowed {', '.join(choices)}")
-        return value
-
-    def text(self, key, default=""):
-        value = self.pop(key, default)
-        if not isinstance(value, str):
-            raise ValueError(f"{self._where(key)} = {value!r}: allowed a string")
-        return value
-
-    def done(self):
-        if self.table:
-            key = sorted(self.table)[0]
-            allowed = ", ".join(sorted(set(self.known))) or "none"
-            raise ValueError(
-                f"{self._where(key)} is not a known key (value {self.table[key]!r}); "
-                f"allowed keys here: {allowed}"
-            )
 
 
 def _parse(source: str, doc: dict) -> Scene:
@@ -471,17 +394,20 @@ def _validated(scene: Scene) -> Scene:
     return scene
 
 
-def load_scene(name_or_path) -> Scene:
-    """A shipped scene by name (:data:`SCENE_NAMES`) or a scene file by path."""
+def load_scene(name_or_path) -> Scene | LoopScene:
+    """A shipped scene by name (:data:`SCENE_NAMES`, :data:`LOOP_SCENE_NAMES`) or a scene file
+    by path; a closed-loop file (``kind = "closed_loop"``) gives a
+    :class:`~cardiosoft.loop_scene.LoopScene`."""
     text_name = str(name_or_path)
-    if text_name in SCENE_NAMES:
+    if text_name in SCENE_NAMES + LOOP_SCENE_NAMES:
         path = resources.files("cardiosoft") / "scenes" / f"{text_name}.toml"
         source, text = text_name, path.read_text()
     else:
         path = Path(text_name)
         if not path.is_file():
             raise ValueError(
-                f"scene = {text_name!r}: allowed a shipped scene ({', '.join(SCENE_NAMES)}) "
+                f"scene = {text_name!r}: allowed a shipped scene "
+                f"({', '.join(SCENE_NAMES + LOOP_SCENE_NAMES)}) "
                 "or the path of a .toml scene file"
             )
         source, text = str(path), path.read_text()
@@ -489,4 +415,6 @@ def load_scene(name_or_path) -> Scene:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"{source}: not valid TOML: {err}") from None
+    if doc.get("kind") == "closed_loop":
+        return parse_loop_scene(source, doc)
     return _parse(source, doc)

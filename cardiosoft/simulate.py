@@ -27,7 +27,7 @@ OUTPUT_FILES = ("summary.json", "traces.csv", "figure.png")
 
 
 def _parser() -> argparse.ArgumentParser:
-    from cardiosoft.scene import ACCURACY, RANGES, SCENE_NAMES
+    from cardiosoft.scene import ACCURACY, LOOP_SCENE_NAMES, RANGES, SCENE_NAMES
 
     def allowed(field, left="["):
         lo, hi = RANGES[field]
@@ -40,8 +40,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--scene",
         default="bench-dynamic",
-        help=f"shipped scene ({', '.join(SCENE_NAMES)}) or a scene .toml file "
-        "(default: bench-dynamic)",
+        help=f"shipped scene ({', '.join(SCENE_NAMES)}; closed loops: "
+        f"{', '.join(LOOP_SCENE_NAMES)}) or a scene .toml file (default: bench-dynamic)",
     )
     p.add_argument(
         "--bpm", type=float, help=f"beats per minute, {allowed('bpm', '(')} (default: the scene's)"
@@ -131,7 +131,35 @@ _CIRCULATION_COLUMNS = (
 )
 
 
+def _is_loop(scene) -> bool:
+    from cardiosoft.loop_scene import LoopScene
+
+    return isinstance(scene, LoopScene)
+
+
+def _design(scene) -> dict:
+    """The design of the summary: Omega and C, or each pump's of a closed loop."""
+    if not _is_loop(scene):
+        return {"omega": scene.omega, "shortening": scene.shortening}
+    pumps = {c: getattr(scene, c) for c in scene.pumps}
+    return {"pumps": {c: {"omega": p.omega, "shortening": p.shortening} for c, p in pumps.items()}}
+
+
+def _heading(scene) -> str:
+    if not _is_loop(scene):
+        return f"{scene.name} at {scene.bpm:g} bpm, Omega {scene.omega:g}, C {scene.shortening:g}"
+    pumps = [
+        f"{c.upper()} pump Omega {getattr(scene, c).omega:g}, C {getattr(scene, c).shortening:g}"
+        for c in scene.pumps
+    ]
+    return ", ".join([f"{scene.name} (closed loop) at {scene.bpm:g} bpm", *pumps])
+
+
 def _table(records, scene, paper) -> str:
+    if _is_loop(scene):
+        from cardiosoft.loop_records import loop_table
+
+        return loop_table(records)
     columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
     head = [c[0] for c in columns]
     units = [c[1] for c in columns]
@@ -185,8 +213,7 @@ def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> li
                 {
                     "scene": result.scene.name,
                     "bpm": result.scene.bpm,
-                    "omega": result.scene.omega,
-                    "shortening": result.scene.shortening,
+                    **_design(result.scene),
                     "records": records,
                     **(extra or {}),
                 },
@@ -204,6 +231,10 @@ def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> li
             ("cable_force_N", "cable_force", 1.0),
             ("column_volume_ml", "column_volume", ml),
         ]
+        if _is_loop(result.scene):
+            from cardiosoft.loop_records import loop_trace_columns
+
+            columns = loop_trace_columns(result.members[0].traces)
         with open(staging / "traces.csv", "w", newline="") as f:
             writer = csv.writer(f)
             writer.writerow(["member", *[c[0] for c in columns]])
@@ -221,9 +252,10 @@ def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> li
                     )
         written = ["summary.json", "traces.csv"]
         if plot:
-            from cardiosoft.plots import plot_fig10
+            from cardiosoft.plots import plot_closed_loop, plot_fig10
 
-            plot_fig10(result, staging / "figure.png")
+            draw = plot_closed_loop if _is_loop(result.scene) else plot_fig10
+            draw(result, staging / "figure.png")
             written.append("figure.png")
         targets = [out_dir / name for name in written]
         for name, target in zip(written, targets, strict=True):
@@ -261,14 +293,17 @@ def main(argv=None) -> int:
         )
         if args.beats is not None:
             check_range("beats", args.beats, "beats", 1, 500)
-        if args.compare_paper and not scene.afterload.has_heads:
+        loop = _is_loop(scene)
+        if args.compare_paper and (loop or not scene.afterload.has_heads):
             raise ValueError(f"--compare-paper: scene {scene.name} is not the paper's bench")
+        if args.verify and loop:
+            raise ValueError(f"--verify: not available for a closed-loop scene ({scene.name}) yet")
         what = (
             "quasi-static pull, one root find per cable position"
             if scene.static
             else "compiling, then solving beat by beat to the periodic steady state"
         )
-        n = max(1, len(scene.afterloads))
+        n = 1 if loop else max(1, len(scene.afterloads))
         say(f"{scene.name}: {n} afterload(s), {scene.bpm:g} bpm; {what} ...")
         start = time.perf_counter()
         result = run(
@@ -285,10 +320,7 @@ def main(argv=None) -> int:
     records = summary_records(result)
     if not args.quiet:
         paper = _paper_values() if args.compare_paper else None
-        print(
-            f"{result.scene.name} at {result.scene.bpm:g} bpm, Omega {result.scene.omega:g}, "
-            f"C {result.scene.shortening:g}" + ("   (paper: 30 bpm)" if paper is not None else "")
-        )
+        print(_heading(result.scene) + ("   (paper: 30 bpm)" if paper is not None else ""))
         print(_table(records, result.scene, paper))
         for m in result.members:
             if not m.ok:

@@ -249,6 +249,7 @@ PERIODIC_SCALES = {
     "relaxation": ml,  # the shell dashpot's volume
     "pc": mmHg,
     "pa": mmHg,
+    "pressure": mmHg,  # a vessel compartment's (cardiosoft.heart.Vessel)
 }
 """State leaves compared from beat to beat, with the unit of the steady-state tolerance (ml,
 ml/s, mmHg). Accumulators (``supplied_volume``, ``drained_volume``) grow every beat and are not
@@ -423,9 +424,10 @@ def shoot_periodic(
     2. Newton's method (``optimistix.root_find``) on ``u -> Phi(u) - u``, ``Phi`` the state one
        beat later, in the periodic states of :data:`PERIODIC_SCALES` divided by their scales
        (ml, ml/s, mmHg); its Jacobian comes from forward-mode derivatives of the beat (a 2-5
-       dimensional state). ``closed``: the circuit conserves its total fluid volume (no
-       preload), so the orbits form a family, one per total; the pump volume is then
-       eliminated, ``V = total_volume(y0) - (total_volume(y) - V)``. Accumulators
+       dimensional state; 11 in a closed loop). ``closed``: the circuit conserves its total
+       fluid volume (no preload), so the orbits form a family, one per total; the first state
+       named ``volume`` (the pump's; a closed loop's left atrium's) is then eliminated,
+       ``V = total_volume(y0) - (total_volume(y) - V)``. Accumulators
        (:data:`ACCUMULATORS`) are bookkeeping, read by nothing but the volume check: with a
        preload (an open circuit, whose total the orbit does not fix) the first is re-based so
        that the total volume is that of ``y0``. Left at its guessed value, Newton's move of the
@@ -612,9 +614,11 @@ class _Unknowns:
     def __init__(self, y: dict, closed: bool, total_volume):
         flat, self.treedef = jax.tree_util.tree_flatten_with_path(y)
         names = [path[-1].key for path, _ in flat]
+        # closed: the first leaf named "volume" (the pump's; a closed loop's left atrium) is
+        # eliminated, held by the total (total_volume is affine in it with slope 1)
+        self.eliminated = names.index("volume") if closed else None
         self.unknown = [
-            i for i, name in enumerate(names)
-            if name in PERIODIC_SCALES and not (closed and name == "volume")
+            i for i, name in enumerate(names) if name in PERIODIC_SCALES and i != self.eliminated
         ]
         self.scales = jnp.asarray([PERIODIC_SCALES[names[i]] for i in self.unknown])
         self.template = [leaf for _, leaf in flat]
@@ -633,11 +637,13 @@ class _Unknowns:
         leaves = list(self.template)
         for k, i in enumerate(self.unknown):
             leaves[i] = u[k] * self.scales[k]
-        y = jax.tree_util.tree_unflatten(self.treedef, leaves)
         if self.closed:
-            others = self.total_volume({**y, "volume": jnp.zeros_like(y["volume"])})
-            return {**y, "volume": v_ref - others}
-        if self.rebase is None:
+            i = self.eliminated
+            leaves[i] = jnp.zeros_like(leaves[i])
+            others = self.total_volume(jax.tree_util.tree_unflatten(self.treedef, leaves))
+            leaves[i] = v_ref - others
+        y = jax.tree_util.tree_unflatten(self.treedef, leaves)
+        if self.closed or self.rebase is None:
             return y
 
         def with_leaf(a):
