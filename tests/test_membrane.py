@@ -1,5 +1,6 @@
-"""The shell's inflation as a Yeoh membrane (fit/membrane): closed forms for the sphere and
-the spheroid, convergence in the number of elements, the inner surface, the cables."""
+"""The shell's inflation as a Yeoh membrane (fit/membrane.py): closed forms for the sphere and
+the spheroid, convergence in the number of elements, the inner surface, the cables, the data
+file and its command line."""
 
 import math
 
@@ -7,9 +8,12 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from cardiosoft.geometry import Shell, cable_length
-from cardiosoft.units import mm, mmHg
+from cardiosoft import datasets
+from cardiosoft.files import sha256
+from cardiosoft.geometry import Shell, cable_length, cavity_volume
+from cardiosoft.units import ml, mm, mmHg
 from fit import membrane as mb
+from fit.membrane import __main__ as cli
 
 R = 30 * mm  # sphere radius
 H = 1.5 * mm  # the paper's wall
@@ -199,3 +203,74 @@ def test_restrained_cables_keep_their_length():
     assert float(mb.cable_length(m, e, state.x)) == pytest.approx(
         float(mb.cable_length(m, e, m.nodes)), rel=1e-9, abs=0
     )
+
+
+# ------------------------------------------------------------------- the data file and CLI
+
+
+def test_shipped_file():
+    d = datasets.load_paper_data().membrane_inflation
+    assert d.kind == "membrane_inflation"
+    assert d.sha256 == sha256(d.path)
+    assert datasets.load_paper_data().hashes()[d.path.name] == d.sha256
+    p, v, s = d["pressure_mmHg"], d["volume_ml"], d["swelling_ml"]
+    assert p[0] == 0 and p[-1] >= 250
+    assert v[0] == pytest.approx(float(cavity_volume(Shell())) / ml, abs=5e-5)
+    np.testing.assert_allclose(v - v[0], s, atol=1.5e-4)  # each printed to 1e-4
+    assert np.all(np.diff(v) > 0) and np.all(d["compliance_ml_per_mmHg"] > 0)
+    assert all(
+        "python -m fit.membrane" in t and f"{mb.N_ELEMENTS} linear elements" in t
+        for t in d.provenance
+    )
+
+
+@pytest.mark.slow
+def test_shipped_file_is_the_modules_output():
+    """The shipped curve regenerated at its element count: equal to its printed digits."""
+    d = datasets.load_paper_data().membrane_inflation
+    keep = np.isin(d["pressure_mmHg"], [30, 90, 150, 250])
+    r = mb.inflation(d["pressure_mmHg"][keep] * mmHg)
+    np.testing.assert_allclose(r.volume / ml, d["volume_ml"][keep], rtol=0, atol=6e-5)
+
+
+def test_cli_writes_a_loadable_file_and_refuses_to_overwrite(tmp_path, capsys):
+    out = tmp_path / "membrane_inflation_small.csv"
+    args = ["--out", str(out), "--elements", "8", "--p-max", "20", "--step", "10"]
+    assert cli.main(args) == 0
+    d = datasets.load(out)
+    assert d.kind == "membrane_inflation"
+    np.testing.assert_array_equal(d["pressure_mmHg"], [0, 10, 20])
+    assert "python -m fit.membrane --elements 8 --p-max 20 --step 10" in d.provenance[0]
+    printed = capsys.readouterr().out
+    assert sha256(out) in printed
+    before = out.read_bytes()
+    assert cli.main(args) == 2  # exists: refused without --force
+    assert out.read_bytes() == before
+    assert "--force" in capsys.readouterr().err
+    assert cli.main([*args, "--force"]) == 0
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (["--elements", "2"], "--elements = 2"),
+        (["--p-max", "-5"], "pressure = -5 mmHg"),
+        (["--step", "0"], "--step = 0 mmHg"),
+    ],
+)
+def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, bad, message):
+    out = tmp_path / "m.csv"
+    assert cli.main(["--out", str(out), *bad]) == 2
+    assert not out.exists()
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+def test_malformed_membrane_file_is_refused(tmp_path):
+    path = tmp_path / "membrane_inflation_mine.csv"
+    path.write_text("pressure_mmHg,volume_ml,provenance\n0,108.6,mine\n0,109.0,mine\n")
+    with pytest.raises(ValueError, match="duplicate row"):
+        datasets.load(path)
+    path.write_text("pressure_mmHg,volume_ml,provenance\n-3,108.6,mine\n")
+    with pytest.raises(ValueError, match="column 'pressure_mmHg'"):
+        datasets.load(path)
