@@ -169,9 +169,25 @@ def test_continuation_step_does_not_change_the_curve():
         np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-9 * R)
 
 
-def test_pressures_are_checked():
+def test_inputs_are_checked():
     with pytest.raises(ValueError, match=r"pressure = -1 mmHg is outside .*\[0, 2000\] mmHg"):
         mb.inflate([0.0, -1 * mmHg], n_elements=8)
+    with pytest.raises(ValueError, match=r"n_elements = 3 is outside the allowed range \[4, inf\)"):
+        mb.inflate([10 * mmHg], n_elements=3)
+    with pytest.raises(ValueError, match=r"restrain_omega = -1 is outside .*\[0, 50\]"):
+        mb.inflation([10 * mmHg], n_elements=8, restrain_omega=-1.0)
+    with pytest.raises(ValueError, match="must not decrease"):
+        mb.solve(mb.shell_membrane(8), [20 * mmHg, 10 * mmHg])
+
+
+def test_inflation_curve_in_si():
+    """The curve the fit reads: pressures (Pa) from 0 every step, volumes (m^3) from the
+    paper's unloaded cavity, the same as inflate's."""
+    p, v = mb.inflation_curve(p_max=20 * mmHg, step=10 * mmHg, n_elements=8)
+    np.testing.assert_allclose(p, [0.0, 10 * mmHg, 20 * mmHg], rtol=1e-15)
+    assert v[0] == pytest.approx(float(cavity_volume(Shell())), rel=1e-12, abs=0)
+    np.testing.assert_allclose(v, mb.inflate(p, n_elements=8), rtol=1e-12)
+    assert np.all(np.diff(v) > 0)
 
 
 # ---------------------------------------------------------------------------------- cables

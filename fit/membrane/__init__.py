@@ -238,6 +238,12 @@ def inflation(
     circumference; an upper bound of the restraint). None: the shell inflates freely.
     """
     pressures = _check_pressures(pressures)
+    if restrain_omega is not None and not 0 <= restrain_omega <= 50:
+        raise ValueError(
+            f"restrain_omega = {restrain_omega:g} is outside the allowed range [0, 50]"
+        )
+    if int(n_cables) < 1:
+        raise ValueError(f"n_cables = {n_cables} is outside the allowed range [1, inf)")
     shell = Shell() if shell is None else shell
     m = shell_membrane(n_elements, shell)
     cable = None
