@@ -1,4 +1,4 @@
-"""``python -m fit.membrane``: write the shell's inflation curve, or print the study.
+"""Write the shell's inflation curve (python -m fit.membrane), or print the study.
 
     python -m fit.membrane                   # fit/data/membrane_inflation.csv (--force: overwrite)
     python -m fit.membrane --out PATH --elements N --p-max MMHG --step MMHG
