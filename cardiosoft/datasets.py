@@ -1,12 +1,14 @@
 """The paper's numbers as validated CSV files, and a strict loader for files of the same kinds.
 
-Four kinds of file live in ``fit/data/`` (schema and conventions in ``fit/data/README.md``),
+Five kinds of file live in ``fit/data/`` (schema and conventions in ``fit/data/README.md``),
 shipped inside the package as ``cardiosoft/_paper_data`` (:func:`default_root`):
 
 - ``table1_fem``: FEM sweep of EF (and folds) over Omega x C at zero pressure (Table I);
 - ``table2_experiment``: experimental EF, folds and FEM error (Table II, held out for validation);
 - ``fig10_bench``: the ventricle-simulator bench at 30/60/90 mmHg (Sec. III-D, Fig. 10);
-- ``fem_comparisons``: scalar FEM comparisons of helical vs longitudinal loading (Sec. III-A, C).
+- ``fem_comparisons``: scalar FEM comparisons of helical vs longitudinal loading (Sec. III-A, C);
+- ``membrane_inflation``: the shell's swelling V(P) at zero cable pull, *computed* (not
+  transcribed) from the paper's geometry and material by ``python -m fit.membrane``.
 
 A researcher can bring a file of any of these kinds: ``load(path)`` infers the kind from a file
 name that starts with the kind (``table1_fem_mysweep.csv``), or ``load(path, kind="table1_fem")``
@@ -212,6 +214,36 @@ SCHEMAS: dict[str, Schema] = {
         key=("quantity", "omega", "shortening", "condition"),
         doc="scalar FEM comparisons helical vs longitudinal (paper: Sec. III-A, III-C)",
     ),
+    "membrane_inflation": Schema(
+        "membrane_inflation",
+        {
+            "pressure_mmHg": Column(
+                "float", "mmHg", 0.0, _INF, doc="cavity pressure, zero cable pull"
+            ),
+            "volume_ml": Column("float", "ml", 0.0, _INF, lo_open=True, doc="cavity volume"),
+            "swelling_ml": Column(
+                "float", "ml", required=False, doc="volume minus the volume at zero pressure"
+            ),
+            "compliance_ml_per_mmHg": Column(
+                "float",
+                "ml/mmHg",
+                0.0,
+                _INF,
+                lo_open=True,
+                required=False,
+                doc="tangent dV/dP of the curve",
+            ),
+            "plug_displacement_mm": Column(
+                "float", "mm", required=False, doc="axial motion of the apex plug, + from the base"
+            ),
+            "max_stretch": Column(
+                "float", "-", 1.0, _INF, required=False, doc="largest principal stretch of the wall"
+            ),
+            "provenance": _PROVENANCE,
+        },
+        key=("pressure_mmHg",),
+        doc="the shell's V(P) at zero pull (computed from Sec. II-B, II-D by fit/membrane.py)",
+    ),
 }
 
 KINDS: tuple[str, ...] = tuple(SCHEMAS)
@@ -272,16 +304,24 @@ class Dataset:
 
 @dataclass(frozen=True)
 class PaperData:
-    """The four shipped files of ``fit/data``."""
+    """The five shipped files of ``fit/data`` (``membrane_inflation`` is computed, not
+    transcribed: see ``fit/membrane.py``)."""
 
     table1_fem: Dataset
     table2_experiment: Dataset
     fig10_bench: Dataset
     fem_comparisons: Dataset
+    membrane_inflation: Dataset
 
     def __iter__(self):
         return iter(
-            (self.table1_fem, self.table2_experiment, self.fig10_bench, self.fem_comparisons)
+            (
+                self.table1_fem,
+                self.table2_experiment,
+                self.fig10_bench,
+                self.fem_comparisons,
+                self.membrane_inflation,
+            )
         )
 
     def hashes(self) -> dict[str, str]:
@@ -322,7 +362,7 @@ def default_root() -> Path:
 
 
 def load_paper_data(root=None) -> PaperData:
-    """Load and validate the four shipped files from ``root`` (default: :func:`default_root`)."""
+    """Load and validate the five shipped files from ``root`` (default: :func:`default_root`)."""
     root = default_root() if root is None else Path(root)
     return PaperData(**{kind: load(root / name, kind) for kind, name in PAPER_FILES.items()})
 
