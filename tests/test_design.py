@@ -59,10 +59,10 @@ def test_steady_state_gradient_matches_central_differences(pump):
     About 55 s on two busy cores, 40 s of it compiling the search's function, which the
     recovery and unreachable-target tests below then reuse (run alone, the first of them pays
     the compile instead)."""
-    problem = design._problem(
+    problem = design.problem.build_problem(
         "bench-dynamic", 70.0, None, HEADS, BPM, design.DEFAULT_FREE, None, None, None, None, 0.5
     )
-    evaluate = design._Evaluator(problem, pump, None, "shooting")
+    evaluate = design.programs.Evaluator(problem, pump, None, "shooting")
     at = problem.base | {"omega": 4.0, "shortening": 0.4}
     z = np.repeat(problem.space.to_z(at, problem.base)[None, :], design.REFINE, axis=0)
     values, jac, ok, _ = evaluate(z)
@@ -172,7 +172,7 @@ def test_bad_input_raises_a_value_error_naming_it(kwargs, words):
 
 
 def test_targets_pair_up_with_afterloads_and_rates():
-    p = design._problem(
+    p = design.problem.build_problem(
         "bench-dynamic",
         [60, 70],
         None,
@@ -189,7 +189,7 @@ def test_targets_pair_up_with_afterloads_and_rates():
         (60, 30, 50),
         (70, 90, 70),
     ]
-    one = design._problem(
+    one = design.problem.build_problem(
         "bench-dynamic", 70, None, None, None, design.DEFAULT_FREE, None, None, None, None, 0.5
     )
     assert [(t.sv_ml, t.afterload_mmHg, t.bpm) for t in one.targets] == [
@@ -197,7 +197,7 @@ def test_targets_pair_up_with_afterloads_and_rates():
         (70, 60, 30),
         (70, 90, 30),
     ]
-    lv = design._problem(
+    lv = design.problem.build_problem(
         "lv-systemic", None, 5.0, None, [60, 80], design.DEFAULT_FREE, None, None, None, None, 0.5
     )
     assert [(t.co_l_min, t.afterload_mmHg, t.bpm) for t in lv.targets] == [
@@ -207,7 +207,7 @@ def test_targets_pair_up_with_afterloads_and_rates():
 
 
 def test_design_space_maps_inside_the_ranges_and_back():
-    p = design._problem(
+    p = design.problem.build_problem(
         "lv-systemic",
         70,
         None,
@@ -221,7 +221,7 @@ def test_design_space_maps_inside_the_ranges_and_back():
         0.5,
     )
     z = np.array([[-50.0, 50.0, 0.0, 30.0, 30.0], [0.3, -0.2, 1.0, -2.0, 0.5]])
-    v = design._design_values(p, z)
+    v = design.search.design_values(p, z)
     assert np.all((v["omega"] >= 0) & (v["omega"] <= 6))
     assert np.all((v["shortening"] >= 0) & (v["shortening"] <= 0.65))
     assert np.all((v["bpm"] > 40) & (v["bpm"] < 120))
