@@ -26,6 +26,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from cardiosoft import progress
+
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 CACHE_VARIABLE = "CARDIOSOFT_COMPILE_CACHE"
 """``0`` switches the compile cache off; a folder puts it there (:func:`use_compile_cache`)."""
@@ -139,9 +141,7 @@ class Console:
     def say(self, line: str) -> None:
         """A progress line (written around a progress bar, if one is shown)."""
         if not self.quiet:
-            from tqdm import tqdm
-
-            tqdm.write(line, file=sys.stderr)
+            progress.write(line)
 
     def flag(self, where: str, what: str) -> None:
         """A number not to be taken as it is: a warning line, and the JSON's ``flags``."""
@@ -155,20 +155,8 @@ class Console:
         print(f"failed: {self.failures[-1]}", file=sys.stderr)
 
     def progress(self, total: int, *, desc: str, unit: str, initial: int = 0):
-        """A progress bar on stderr (tqdm): shown on a terminal only, never with ``quiet``."""
-        from tqdm.auto import tqdm
-
-        return tqdm(
-            total=total,
-            initial=initial,
-            desc=desc,
-            unit=unit,
-            disable=True if self.quiet else None,  # None: off unless stderr is a terminal
-            file=sys.stderr,
-            mininterval=1.0,
-            smoothing=0.1,
-            dynamic_ncols=True,
-        )
+        """A progress bar (:func:`cardiosoft.progress.bar`): on a terminal, never ``quiet``."""
+        return progress.bar(total, desc=desc, unit=unit, enabled=not self.quiet, initial=initial)
 
     def record(self) -> dict:
         """What the JSON output says of the run's trust: flags, failures, exit status."""

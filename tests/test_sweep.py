@@ -28,13 +28,14 @@ from cardiosoft.sweep import (
     PARTIAL,
     STATUS,
     VARIABLES,
-    _boxes,
     design_sweep,
+    flat_range_boxes,
     map_name,
     parse_values,
 )
 
 sweep_module = importlib.import_module("cardiosoft.sweep")
+chunk_module = importlib.import_module("cardiosoft.sweep.chunk")
 REPO = Path(__file__).resolve().parent.parent
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 CHUNK, BEATS = 3, 2
@@ -150,7 +151,7 @@ def test_boxes_cover_a_flat_range_in_order(shape, data):
     start = data.draw(st.integers(0, size - 1))
     stop = data.draw(st.integers(start + 1, size))
     index = np.arange(size).reshape(shape)
-    boxes = _boxes(start, stop, shape)
+    boxes = flat_range_boxes(start, stop, shape)
     assert len(boxes) <= 2 * len(shape) - 1
     covered = np.concatenate([index[box].ravel() for box in boxes])
     np.testing.assert_array_equal(covered, np.arange(start, stop))
@@ -266,7 +267,7 @@ def test_nan_surrogate_marks_points_not_steady_with_the_reason():
 def test_interrupted_sweep_resumes_where_it_stopped(swept, tmp_path, monkeypatch):
     ds, _ = swept
     out = tmp_path / "maps"
-    solve = sweep_module._solve_chunk
+    solve = chunk_module.solve_chunk
     solved = []
 
     def interrupted(task):
@@ -275,7 +276,7 @@ def test_interrupted_sweep_resumes_where_it_stopped(swept, tmp_path, monkeypatch
         solved.append(task.index)
         return solve(task)
 
-    monkeypatch.setattr(sweep_module, "_solve_chunk", interrupted)
+    monkeypatch.setattr(chunk_module, "solve_chunk", interrupted)
     with pytest.raises(KeyboardInterrupt):
         design_sweep("bench-dynamic", out=out, **KW)
     assert not (out / OUTPUT).exists()
@@ -294,7 +295,7 @@ def test_interrupted_sweep_resumes_where_it_stopped(swept, tmp_path, monkeypatch
         solved.append(task.index)
         return solve(task)
 
-    monkeypatch.setattr(sweep_module, "_solve_chunk", counted)
+    monkeypatch.setattr(chunk_module, "solve_chunk", counted)
     got = design_sweep("bench-dynamic", out=out, resume=True, **KW)
     assert solved == [2]
     assert not (out / PARTIAL).exists()
