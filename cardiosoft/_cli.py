@@ -1,21 +1,11 @@
-"""What the command lines share: their parser, options, messages, exit status and process set-up.
+"""What the command lines share: their parser and options, and their process set-up.
 
-Numerics never live here; safe file output is :mod:`cardiosoft.files`. Every command
-(``cardiosoft simulate|design|sweep|stress|geometry``, or ``python -m cardiosoft.X``) builds its
-parser with :func:`command_parser` and reports through a :class:`Console`:
-
-- **bad input**: one line ``error: <parameter> = <value> <unit> is outside ...`` on stderr,
-  exit status 2, nothing written (:func:`fail`; argparse's own errors likewise);
-- **progress**: lines and bars on stderr (tqdm; a bar only on a terminal), none with
-  ``--quiet``;
-- **flags** (a number not to be taken as it is: the surrogate extrapolated, a target that
-  cannot be reached, a transient where a fixed number of beats was asked): ``warning: ...`` on
-  stderr and ``flags`` in the JSON the command writes; they do not change the exit status
-  unless ``--strict``;
-- **failures** (a member whose solve failed, or that did not reach the periodic steady state it
-  was asked to reach; a hard case that fails): ``failed: ...`` on stderr, exit status 1.
-
-:data:`EXIT_STATUS` says it in the words every ``--help`` ends with.
+Numerics never live here. Every command (``cardiosoft simulate|design|sweep|stress|geometry``,
+or ``python -m cardiosoft.X``) builds its parser with :func:`command_parser`: argparse's own
+errors are one line and exit status 2, like every other bad input, and ``--help`` ends with the
+command's exit status (:data:`EXIT_STATUS`). What a command prints, its flags, failures and exit
+status are :mod:`cardiosoft.console`'s; writing outputs whole, :mod:`cardiosoft.files`'s; a
+command's own process is set up by :func:`prepare_process` (XLA flags, the compile cache).
 """
 
 from __future__ import annotations
@@ -26,9 +16,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from cardiosoft import progress
+from cardiosoft.console import EXIT_BAD_INPUT
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 CACHE_VARIABLE = "CARDIOSOFT_COMPILE_CACHE"
 """``0`` switches the compile cache off; a folder puts it there (:func:`use_compile_cache`)."""
 EXIT_STATUS = (
@@ -115,70 +104,6 @@ def values_argument(items):
     for item in items:
         out += parse_values(item, "value")
     return out
-
-
-# ------------------------------------------------------------------------------ what it prints
-
-
-def fail(err: BaseException) -> int:
-    """Print one line for a bad input and return the CLI's bad-input exit code."""
-    print(f"error: {err}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
-class Console:
-    """A command's messages on stderr, its flags and failures, and its exit status.
-
-    ``quiet``: no progress and no warnings (errors and failures are still printed);
-    ``strict``: a flag makes the exit status 1.
-    """
-
-    def __init__(self, quiet: bool = False, strict: bool = False):
-        self.quiet, self.strict = quiet, strict
-        self.flags: list[str] = []
-        self.failures: list[str] = []
-
-    def say(self, line: str) -> None:
-        """A progress line (written around a progress bar, if one is shown)."""
-        if not self.quiet:
-            progress.write(line)
-
-    def flag(self, where: str, what: str) -> None:
-        """A number not to be taken as it is: a warning line, and the JSON's ``flags``."""
-        self.flags.append(f"{where}: {what}" if where else what)
-        if not self.quiet:
-            print(f"warning: {self.flags[-1]}", file=sys.stderr)
-
-    def fail(self, where: str, what: str) -> None:
-        """A member that failed or missed the steady state it was asked for: exit status 1."""
-        self.failures.append(f"{where}: {what}" if where else what)
-        print(f"failed: {self.failures[-1]}", file=sys.stderr)
-
-    def progress(self, total: int, *, desc: str, unit: str, initial: int = 0):
-        """A progress bar (:func:`cardiosoft.progress.bar`): on a terminal, never ``quiet``."""
-        return progress.bar(total, desc=desc, unit=unit, enabled=not self.quiet, initial=initial)
-
-    def record(self) -> dict:
-        """What the JSON output says of the run's trust: flags, failures, exit status."""
-        return {"flags": self.flags, "failures": self.failures, "exit_status": self.status()}
-
-    def status(self) -> int:
-        """1 on a failure, or on a flag with ``strict``; else 0."""
-        return EXIT_FAILED if self.failures or (self.strict and self.flags) else EXIT_OK
-
-
-def report_members(console: Console, members, *, steady_asked: bool) -> None:
-    """Each member's flags as warnings; a member that is not ok as a failure, unless it only
-    stopped short of the steady state where a fixed number of beats was asked (a flag then).
-
-    ``members``: :class:`cardiosoft.results.MemberResult` s (``label``, ``ok``, ``message``,
-    ``flags``)."""
-    for m in members:
-        if not m.ok:
-            transient = m.message.startswith("not steady")
-            (console.flag if transient and not steady_asked else console.fail)(m.label, m.message)
-        for what in m.flags:
-            console.flag(m.label, what)
 
 
 # ------------------------------------------------------------------------------ the process

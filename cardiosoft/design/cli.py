@@ -10,14 +10,13 @@ import math
 from pathlib import Path
 
 from cardiosoft._cli import (
-    Console,
     add_output_options,
     add_report_options,
     add_scene_option,
     allowed,
     command_parser,
-    fail,
 )
+from cardiosoft.console import Console, fail
 from cardiosoft.design.problem import (
     DEFAULT_FREE,
     FREE_VARIABLES,
@@ -296,16 +295,17 @@ def _check(scene, kwargs) -> None:
 
 
 def _write(out_dir: Path, result: DesignResult, plot: bool, console: Console) -> None:
+    """design.json (the result, the exit status) and the figure, moved into place together."""
     from cardiosoft.design.figure import plot_design
-    from cardiosoft.files import atomic_path
+    from cardiosoft.files import write_together
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out_dir / "design.json") as tmp:
-        tmp.write_text(json.dumps(result.to_json(), indent=2, allow_nan=False) + "\n")
-    console.say(f"wrote {out_dir / 'design.json'}")
-    if plot:
-        plot_design(result, out_dir / "design.png")
-        console.say(f"wrote {out_dir / 'design.png'}")
+    record = result.to_json() | {"exit_status": console.status()}
+    with write_together(out_dir) as staging:
+        (staging / "design.json").write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
+        if plot:
+            plot_design(result, staging / "design.png")
+    for name in OUTPUT_FILES[: 1 + plot]:
+        console.say(f"wrote {out_dir / name}")
 
 
 def main(argv=None, prog: str | None = None) -> int:
@@ -345,12 +345,10 @@ def main(argv=None, prog: str | None = None) -> int:
         return fail(err)
     if not args.quiet:
         print(report(result))
-        if not result.reached:
-            console.flag("", result.message)
-        for t in result.targets:
-            for flag in t.flags:
-                where = f"{t.afterload_mmHg:g} mmHg" if t.afterload_mmHg is not None else "target"
-                console.flag(f"{where}, {t.bpm:g} bpm", flag)
+    for what in result.failures:
+        console.fail("", what)
+    for what in result.flags:
+        console.flag("", what)
     if out_dir is not None:
         _write(out_dir, result, plot, console)
-    return 0 if result.reached else 3
+    return console.status()

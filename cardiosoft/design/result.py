@@ -44,6 +44,12 @@ class TargetResult:
     message: str
     flags: tuple[str, ...] = ()
 
+    @property
+    def where(self) -> str:
+        """The target's afterload and rate, as messages name it."""
+        head = "" if self.afterload_mmHg is None else f"{self.afterload_mmHg:g} mmHg, "
+        return f"{head}{self.bpm:g} bpm"
+
 
 @dataclasses.dataclass(frozen=True)
 class ParetoPoint:
@@ -106,6 +112,20 @@ class DesignResult:
     sv_map: dict | None = None
 
     @property
+    def flags(self) -> tuple[str, ...]:
+        """What of the answer is not to be taken as it is, in words: a target not reached (the
+        closest design is returned; :attr:`message`), and the verifying run's flags of each
+        target (``"<afterload, rate>: <flag>"``). Warnings, not errors (DESIGN.md section 4)."""
+        out = [] if self.reached else [self.message]
+        return tuple(out + [f"{t.where}: {f}" for t in self.targets for f in t.flags])
+
+    @property
+    def failures(self) -> tuple[str, ...]:
+        """The targets whose verifying run failed or did not reach the periodic steady state
+        (``"<afterload, rate>: <why>"``)."""
+        return tuple(f"{t.where}: {t.message}" for t in self.targets if not t.ok)
+
+    @property
     def omega(self) -> float:
         return self.design["omega"]
 
@@ -162,6 +182,8 @@ class DesignResult:
             "seconds": self.seconds,
             "timings": self.timings,
             "message": self.message,
+            "flags": list(self.flags),
+            "failures": list(self.failures),
             "targets": targets,
             "path": list(self.path),
         }

@@ -31,8 +31,9 @@ size (the 12 design corners, times the two column heads of a water-column scene)
   (:data:`cardiosoft.scene.RANGES`), edges and odd values included, not only round ones.
 - ``cli``: members of the grid run again through ``python -m cardiosoft.simulate`` (its
   ``main()``, in this process) and through the API with the same settings; ``summary.json``
-  must equal the API's :func:`~cardiosoft.results.summary_records`, and the exit status must
-  say what the records say.
+  must equal the API's :func:`~cardiosoft.results.summary_records`, its ``flags`` the records'
+  flags, and the exit status must say what the records say (1 when a member is not ok; flags
+  alone leave it 0).
 
 **Checks** (:func:`check_member`), for every case:
 
@@ -62,7 +63,10 @@ A case **passes** when every check holds and nothing is flagged; it is **flagged
 but the member is flagged, not steady (and says so) or its solver failed (and says so); it
 **fails** otherwise. A failure matching :data:`KNOWN_FAILURES` is counted as **known**: printed
 with its reason, not failing the run. The suite prints a progress line per batch and one table
-(cases, passed, flagged, failed, known, time per group) and exits with status 1 on a failure.
+(cases, passed, flagged, failed, known, time per group). Exit status: 1 when a case failed (a
+``failed:`` line each on stderr); a known failure is a flag (a ``warning:`` line), which
+``--strict`` turns into exit status 1; a flagged case is neither (the library flagged its own
+numbers, as it should); 2 for bad input.
 
 **Where it lives.** :mod:`~cardiosoft.stress.cases` (what is run), :mod:`~cardiosoft.stress.draws`
 (hypothesis), :mod:`~cardiosoft.stress.checks` (what is checked, outcomes, known failures),

@@ -33,6 +33,8 @@ class SuiteReport:
 
     @property
     def exit_code(self) -> int:
+        """1 when a case failed, else 0 (known failures and flagged cases do not count; the
+        command line's ``--strict`` makes a known failure count)."""
         return 1 if self.failures else 0
 
     def table(self) -> str:

@@ -194,23 +194,29 @@ class Runner:
                 summary = Path(tmp) / "summary.json"
                 if not summary.exists():
                     raise RuntimeError(f"exit status {rc} and no summary.json")
-                cli_records = json.loads(summary.read_text())["records"]
+                written = json.loads(summary.read_text())
+                cli_records, cli_flags = written["records"], written["flags"]
             api = self._api_records(scene, omega, c, bpm, heads)
         except Exception as error:
             text = f"{type(error).__name__}: {error}".splitlines()[0][:300]
             return [outcome(case, [("cli", text)], []) for case in cases]
-        trusted = all(r["ok"] and not r["flags"] for r in api)
+        # exit status 1 when a member is not ok (solved and steady, as asked), else 0: flags
+        # are warnings (DESIGN.md section 4), listed in summary.json as "<label>: <flag>"
+        ok = all(r["ok"] for r in api)
+        flagged = sorted(f.split(": ", 1)[1] for f in cli_flags)
         outcomes = []
         for case, a, b in zip(cases, api, cli_records, strict=True):
             problems = [("cli", d) for d in differences(a, b)]
-            if rc != (0 if trusted else 1):
+            if rc != (0 if ok else 1):
                 problems.append(
                     (
                         "cli",
                         f"exit status {rc}, but the API's records are "
-                        f"{'all' if trusted else 'not all'} ok and unflagged",
+                        f"{'all' if ok else 'not all'} ok",
                     )
                 )
+            if flagged != sorted(f for r in api for f in r["flags"]):
+                problems.append(("cli", f"summary.json's flags {flagged} are not the API's"))
             outcomes.append(outcome(case, problems, []))
         return outcomes
 

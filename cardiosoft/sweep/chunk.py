@@ -22,6 +22,7 @@ __all__ = [
     "VARIABLES",
     "Task",
     "failed_result",
+    "flagged_points",
     "load_pump",
     "solve_chunk",
 ]
@@ -80,6 +81,13 @@ SOLVER_VARIABLES = {
     "volume_drift": ("f8", "1", "largest relative drift of the total fluid volume"),
     "num_steps": ("i4", "1", "solver steps of the last beat"),
     "status": ("i1", "1", "what became of the point: " + ", ".join(STATUS)),
+    "flagged": (
+        "bool",
+        "1",
+        "a number of the point is not to be taken as it is (cardiosoft.results.flags: the pump "
+        "pressure outside the surrogate's fitted range, a cable that would push, an efficiency "
+        "that is not meaningful); the values are kept as computed",
+    ),
 }
 VARIABLES = (*METRIC_VARIABLES, *SOLVER_VARIABLES)
 """The data variables of the Dataset, each with ``units`` and ``long_name`` attributes."""
@@ -122,9 +130,26 @@ def failed_result(n: int, message: str) -> dict:
         "volume_drift": np.full(n, np.nan),
         "num_steps": np.zeros(n, np.int32),
         "status": np.full(n, CHUNK_FAILED, np.int8),
+        "flagged": np.zeros(n, bool),
         "error": np.array(message),
     }
     return out
+
+
+def flagged_points(metrics, n: int, domain) -> np.ndarray:
+    """Whether :func:`cardiosoft.results.flags` flags each of the first ``n`` members of a batch
+    solve's :class:`~cardiosoft.metrics.BeatMetrics` (on a copy: nothing is changed)."""
+    from cardiosoft.results import flags
+
+    fields = {
+        f.name: np.asarray(getattr(metrics, f.name))[:n]
+        for f in dataclasses.fields(metrics)
+        if getattr(metrics, f.name) is not None
+    }
+    return np.array(
+        [bool(flags({k: float(v[i]) for k, v in fields.items()}, domain)) for i in range(n)],
+        dtype=bool,
+    )
 
 
 def solve_chunk(task: Task) -> dict:
@@ -178,6 +203,7 @@ def solve_chunk(task: Task) -> dict:
             "volume_drift": np.asarray(out.volume_drift)[:n].astype(float),
             "num_steps": np.asarray(out.num_steps)[:n].astype(np.int32),
             "status": status,
+            "flagged": flagged_points(out.metrics, n, load_pump(task.pump).domain) & succeeded,
             "error": np.array(""),
         }
         return result

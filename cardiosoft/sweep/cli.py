@@ -11,21 +11,20 @@ from pathlib import Path
 import numpy as np
 
 from cardiosoft._cli import (
-    Console,
     add_output_options,
     add_report_options,
     add_scene_option,
     command_parser,
-    fail,
     values_argument,
 )
-from cardiosoft.sweep.chunk import STATUS
+from cardiosoft.console import Console, fail
+from cardiosoft.sweep.chunk import NOT_STEADY, STATUS
 from cardiosoft.sweep.maps import map_keys
 from cardiosoft.sweep.plan import DEFAULT_CHUNK
 from cardiosoft.sweep.runner import design_sweep
 from cardiosoft.sweep.store import PARTIAL
 
-__all__ = ["main", "parser", "summary"]
+__all__ = ["main", "parser", "report_points", "summary"]
 
 
 def parser(prog: str | None = None):
@@ -169,10 +168,34 @@ def main(argv=None, prog: str | None = None) -> int:
         return 130
     if not args.quiet:
         print(summary(ds))
-    bad = int(ds["steady"].size - ds["steady"].sum())
-    if bad:
-        counts = np.bincount(np.asarray(ds["status"]).ravel(), minlength=len(STATUS))
-        detail = ", ".join(f"{counts[k]} {STATUS[k]}" for k in range(1, len(STATUS)) if counts[k])
-        console.flag("", f"{bad} of {ds['steady'].size} points not steady ({detail})")
+    report_points(console, ds, fixed_beats=args.beats is not None)
     ds.close()
-    return 0
+    return console.status()
+
+
+def report_points(console: Console, ds, fixed_beats: bool) -> None:
+    """Points that failed or missed the steady state (a failure; with ``--beats N`` a point
+    still in a transient is a flag), and points whose numbers are flagged."""
+    status = np.asarray(ds["status"]).ravel()
+    counts = np.bincount(status, minlength=len(STATUS))
+    total = status.size
+    failing = [
+        k for k in range(1, len(STATUS)) if counts[k] and (k != NOT_STEADY or not fixed_beats)
+    ]
+    if failing:
+        detail = ", ".join(f"{counts[k]} {STATUS[k]}" for k in failing)
+        console.fail("", f"{sum(counts[k] for k in failing)} of {total} points ({detail})")
+    if fixed_beats and counts[NOT_STEADY]:
+        console.flag(
+            "",
+            f"{counts[NOT_STEADY]} of {total} points not steady after --beats "
+            f"{int(ds.attrs['max_beats'])} (a transient; 'steady' false in the Dataset)",
+        )
+    flagged = int(np.asarray(ds["flagged"]).sum())
+    if flagged:
+        console.flag(
+            "",
+            f"{flagged} of {total} points flagged: a pump pressure outside the surrogate's fitted "
+            "range, a cable that would push or an efficiency that is not meaningful ('flagged' "
+            "in the Dataset)",
+        )

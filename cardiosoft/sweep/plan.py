@@ -74,7 +74,7 @@ class Plan:
     def identity(self) -> dict:
         """What must match for ``resume`` to continue a sweep (JSON-ready)."""
         return {
-            "format": 1,
+            "format": 2,  # 2: chunks hold "flagged"
             "scene": dataclasses.asdict(self.scene),
             "coords": {k: list(v) for k, v in self.coords.items()},
             "beats": self.beats,

@@ -129,5 +129,5 @@ def write_netcdf(plan: Plan, chunks, path: Path, failed: dict) -> None:
                 n = math.prod(shape)
                 for name, var in variables.items():
                     values = result[name][offset : offset + n].reshape(shape)
-                    var[box] = values.astype(np.int8) if name == "steady" else values
+                    var[box] = values.astype(np.int8) if values.dtype == bool else values
                 offset += n
