@@ -11,6 +11,7 @@ command's own process is set up by :func:`prepare_process` (XLA flags, the compi
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import tempfile
@@ -106,7 +107,47 @@ def values_argument(items):
     return out
 
 
+def fmt(value, spec: str) -> str:
+    """A number of a printed table: ``-`` for none or a non-finite one."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value, spec)
+
+
+def table(header, units, rows) -> str:
+    """A printed table: a header line, a units line, then the rows, each column right-aligned."""
+    widths = [max(len(x) for x in col) for col in zip(header, units, *rows, strict=True)]
+    line = "  ".join
+    out = [
+        line(h.rjust(w) for h, w in zip(header, widths, strict=True)),
+        line(u.rjust(w) for u, w in zip(units, widths, strict=True)),
+    ]
+    out += [line(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
+    return "\n".join(out)
+
+
 # ------------------------------------------------------------------------------ the process
+
+
+FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+"""XLA flags for a process whose time is compiling. Measured on the design search's programs
+(CPU seconds of XLA's compile, one thread, jaxlib 0.10.2, 2 loaded cores): the classic emitters
+compile the bench's orbits in 5.2-5.8 s against 6.9-7.8 s and their derivatives in 2.5-3.2 s
+against 5.9-6.8 s, lv-systemic's in 8.7 and 3.6 s against 10.0 and 8.5 s; the compiled calls
+are no slower (lv-systemic's orbits 1.0 s against 1.3 s)."""
+
+
+def fast_compile_flags() -> tuple[str, ...]:
+    """:data:`FAST_COMPILE_FLAGS` that the installed XLA takes: XLA aborts the process on a flag
+    it does not know, so the emitters' flag is given only to the jaxlib it was measured with
+    (the 0.10 series; pyproject.toml allows < 0.11)."""
+    from importlib import metadata
+
+    try:
+        major_minor = tuple(int(p) for p in metadata.version("jaxlib").split(".")[:2])
+    except (metadata.PackageNotFoundError, ValueError):
+        major_minor = (0, 0)
+    return FAST_COMPILE_FLAGS if major_minor >= (0, 10) else FAST_COMPILE_FLAGS[:1]
 
 
 def prepare_process(tool: str, argv) -> None:
@@ -117,6 +158,8 @@ def prepare_process(tool: str, argv) -> None:
       compiling: LLVM's optimisation of the generated CPU code is about a third of it and buys
       little for a few solves (simulate's results agree to 1e-13; a design search's calls run
       about 3x slower, ~0.15 s against 0.05 s on the bench, which tens of calls hardly notice).
+      With jaxlib 0.10 (where it was measured) also XLA's classic CPU emitters instead of its
+      fusion emitters (:data:`FAST_COMPILE_FLAGS`).
     - sweep, in this process (not with ``--workers`` / ``--scheduler``, whose workers share the
       cores): as many XLA host devices as cores, so that each chunk is sharded over all of them
       (``benchmarks/sweep_throughput.py``, section 4).
@@ -127,7 +170,7 @@ def prepare_process(tool: str, argv) -> None:
     flags = os.environ.get("XLA_FLAGS", "")
     options = {a.split("=")[0] for a in argv}
     if tool in ("simulate", "design") or (tool == "stress" and "--quick" in options):
-        os.environ.setdefault("XLA_FLAGS", "--xla_backend_optimization_level=0")
+        os.environ.setdefault("XLA_FLAGS", " ".join(fast_compile_flags()))
     elif tool == "sweep" and "xla_force_host_platform_device_count" not in flags:
         if not {"--workers", "--scheduler"} & options:
             count = f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -101,14 +100,6 @@ def parser(prog: str | None = None):
     return p
 
 
-def _fmt(value, spec):
-    return (
-        "-"
-        if value is None or (isinstance(value, float) and math.isnan(value))
-        else format(value, spec)
-    )
-
-
 # (header, unit, summary record key, format): one spec per table, so that headers, units and
 # cells cannot drift apart. The paper's rows reuse the bench spec with the same keys.
 _BENCH_COLUMNS = (
@@ -135,23 +126,16 @@ _CIRCULATION_COLUMNS = (
 
 
 def _table(records, scene, paper) -> str:
+    from cardiosoft._cli import fmt, table
+
     columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
-    head = [c[0] for c in columns]
-    units = [c[1] for c in columns]
     rows = []
     for r in records:
-        rows.append([_fmt(r.get(key), fmt) for _, _, key, fmt in columns])
+        rows.append([fmt(r.get(key), spec) for _, _, key, spec in columns])
         if paper is not None and r.get("afterload_mmHg") in paper:
             p = {**paper[r["afterload_mmHg"]], "afterload_mmHg": None}
-            rows.append(["  paper", *[_fmt(p.get(key), fmt) for _, _, key, fmt in columns[1:]]])
-    widths = [max(len(x) for x in col) for col in zip(head, units, *rows, strict=True)]
-    line = "  ".join
-    out = [
-        line(h.rjust(w) for h, w in zip(head, widths, strict=True)),
-        line(u.rjust(w) for u, w in zip(units, widths, strict=True)),
-    ]
-    out += [line(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
-    return "\n".join(out)
+            rows.append(["  paper", *[fmt(p.get(key), spec) for _, _, key, spec in columns[1:]]])
+    return table([c[0] for c in columns], [c[1] for c in columns], rows)
 
 
 def _paper_values():

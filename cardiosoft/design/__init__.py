@@ -52,8 +52,10 @@ over the targets).
    that target over every design evaluated (:attr:`TargetResult.reachable_sv_ml`).
 
 **Derivatives.** Each evaluation is two compiled programs: the periodic orbits of the
-candidates, without derivatives (``steady="shooting"``, the default: Newton shooting on the
-one-beat map, :func:`cardiosoft.solve_beats`; or ``"beats"``, beat after beat from rest), then
+candidates, without derivatives (``steady="shooting"``: Newton shooting on the one-beat map,
+:func:`cardiosoft.solve_beats`; or ``"beats"``, beat after beat from rest; by default
+``"auto"``, shooting on the ringing water-column bench and beats on the damped Windkessel
+scenes, :func:`~cardiosoft.design.search.steady_method`), then
 one beat from each orbit's start by :func:`cardiosoft.solve_orbit`, whose derivative is the
 periodic steady state's by the implicit function theorem, not that of the beats from rest that
 led there. Measured at Omega 4, C 0.4, 60 bpm, the search's d SV / d C and d SV / d Omega agree
@@ -64,7 +66,8 @@ solve differentiated whole, and the two compile at once on two threads while the
 run's is traced (#13: a fresh process 25-29 s instead of 30-33 s, ``benchmarks/design.py``).
 Shooting finds orbits where beats ring for longer than the scene's ``max_beats`` (the bench at
 60 bpm and 90 mmHg: 32 of 32 grid candidates steady against 24 beat after beat); ``"beats"``
-compiles faster (a fresh process about 3-5 s less). The search solves at the scene's accuracy
+compiles faster and runs faster where it converges (lv-systemic at 72 bpm from a fresh
+process: 26.6 CPU seconds against 40.4). The search solves at the scene's accuracy
 preset, as the verifying run does (``accuracy="fast"`` is faster; its stroke volumes differ from
 the run's by up to 0.3 ml in the stiff Windkessel scenes).
 

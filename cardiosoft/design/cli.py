@@ -6,7 +6,6 @@ It parses and prints; the numerics are :func:`cardiosoft.design.optimise`'s.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 from cardiosoft._cli import (
@@ -15,6 +14,8 @@ from cardiosoft._cli import (
     add_scene_option,
     allowed,
     command_parser,
+    fmt,
+    table,
 )
 from cardiosoft.console import Console, fail
 from cardiosoft.design.problem import (
@@ -123,26 +124,10 @@ def _search_options(p) -> None:
         default=DEFAULT_STEADY,
         metavar="METHOD",
         help="how the search finds the periodic orbits it differentiates: shooting (Newton on "
-        "the one-beat map; the default) or beats (beat after beat; compiles faster, fails where "
-        "the beats ring past the scene's max_beats)",
+        "the one-beat map), beats (beat after beat; a lighter program, but fails where the "
+        "beats ring past the scene's max_beats) or auto (the default: shooting on the "
+        "water-column bench, beats on a Windkessel scene)",
     )
-
-
-def _fmt(value, spec) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "-"
-    return format(value, spec)
-
-
-def _table(header, units, rows) -> str:
-    widths = [max(len(x) for x in col) for col in zip(header, units, *rows, strict=True)]
-    line = "  ".join
-    out = [
-        line(h.rjust(w) for h, w in zip(header, widths, strict=True)),
-        line(u.rjust(w) for u, w in zip(units, widths, strict=True)),
-    ]
-    out += [line(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
-    return "\n".join(out)
 
 
 def _head(result: DesignResult) -> list[str]:
@@ -164,23 +149,23 @@ def _head(result: DesignResult) -> list[str]:
     return head
 
 
-def _targets_table(result: DesignResult) -> str:
+def _targetstable(result: DesignResult) -> str:
     rows = [
         [
-            _fmt(t.afterload_mmHg, ".0f"),
-            _fmt(t.bpm, "g"),
-            _fmt(t.target_sv_ml, ".2f"),
-            _fmt(t.sv_ml, ".2f"),
-            _fmt(t.residual_ml, "+.2f"),
-            f"{_fmt(t.reachable_sv_ml[0], '.1f')}-{_fmt(t.reachable_sv_ml[1], '.1f')}",
-            _fmt(t.peak_force_N, ".1f"),
-            _fmt(t.mech_work_J, ".3f"),
-            _fmt(t.efficiency, ".3f"),
-            _fmt(t.cardiac_output_l_min, ".2f"),
+            fmt(t.afterload_mmHg, ".0f"),
+            fmt(t.bpm, "g"),
+            fmt(t.target_sv_ml, ".2f"),
+            fmt(t.sv_ml, ".2f"),
+            fmt(t.residual_ml, "+.2f"),
+            f"{fmt(t.reachable_sv_ml[0], '.1f')}-{fmt(t.reachable_sv_ml[1], '.1f')}",
+            fmt(t.peak_force_N, ".1f"),
+            fmt(t.mech_work_J, ".3f"),
+            fmt(t.efficiency, ".3f"),
+            fmt(t.cardiac_output_l_min, ".2f"),
         ]
         for t in result.targets
     ]
-    return _table(
+    return table(
         [
             "afterload",
             "bpm",
@@ -198,7 +183,7 @@ def _targets_table(result: DesignResult) -> str:
     )
 
 
-def _pareto_table(result: DesignResult) -> str:
+def _paretotable(result: DesignResult) -> str:
     rows = [
         [
             f"{p.omega:.3f}",
@@ -211,7 +196,7 @@ def _pareto_table(result: DesignResult) -> str:
         ]
         for p in result.pareto
     ]
-    out = "\n\nPareto trace (designs hitting the targets; * = not dominated)\n" + _table(
+    out = "\n\nPareto trace (designs hitting the targets; * = not dominated)\n" + table(
         ["Omega", "C", "SV", "peak force", "efficiency", "mech. work", "front"],
         ["", "", "ml", "N", "-", "J", ""],
         rows,
@@ -223,9 +208,9 @@ def _pareto_table(result: DesignResult) -> str:
 
 def report(result: DesignResult) -> str:
     """What the command prints: the design, then a row per target (and the Pareto trace)."""
-    out = "\n".join(_head(result)) + "\n" + _targets_table(result)
+    out = "\n".join(_head(result)) + "\n" + _targetstable(result)
     if result.pareto is not None:
-        out += _pareto_table(result)
+        out += _paretotable(result)
     return out
 
 

@@ -12,9 +12,9 @@ import math
 import threading
 import time
 
+import equinox as eqx
 import numpy as np
 
-from cardiosoft.batch import STEADY_METHODS
 from cardiosoft.design.figure import sv_map
 from cardiosoft.design.problem import DEFAULT_FREE, TOLERANCE_ML, Problem, build_problem
 from cardiosoft.design.programs import Evaluator
@@ -24,6 +24,7 @@ from cardiosoft.design.search import (
     GRID,
     MAX_ROUNDS,
     REFINE,
+    STEADY_CHOICES,
     SearchRecord,
     design_values,
     grid_points,
@@ -32,6 +33,7 @@ from cardiosoft.design.search import (
     residuals,
     secondary_objective,
     select_candidates,
+    steady_method,
 )
 from cardiosoft.design.verify import pareto_trace, target_sv_of, verify_design
 from cardiosoft.pump import PumpSurrogate, load
@@ -45,8 +47,8 @@ def check_method(accuracy, steady) -> None:
     of :func:`cardiosoft.solve_beats`."""
     if accuracy is not None and accuracy not in PRESETS:
         raise ValueError(f"accuracy = {accuracy!r}: allowed {', '.join(PRESETS)}")
-    if steady not in STEADY_METHODS:
-        raise ValueError(f"steady = {steady!r}: allowed {', '.join(STEADY_METHODS)}")
+    if steady not in STEADY_CHOICES:
+        raise ValueError(f"steady = {steady!r}: allowed {', '.join(STEADY_CHOICES)}")
 
 
 def _check_options(problem: Problem, max_rounds, pareto, map_lattice, accuracy, steady) -> None:
@@ -81,14 +83,49 @@ class _Prewarm(threading.Thread):
         self.seconds = time.perf_counter() - begin
 
 
-def _grid_search(problem: Problem, evaluate, record: SearchRecord, z_grid, say, t0: float):
-    """Evaluate the coarse grid in batches of REFINE: ((values, jac, ok) of every candidate,
-    the seconds since ``t0`` that were not the search's compile)."""
-    d = z_grid.shape[1]
+_GRIDS: dict = {}
+"""The coarse grid's evaluations of the last few problems, by :func:`_grid_key`: a further
+target of the same scene, design space, afterloads and rates (only the targets, the objective or
+the tolerance differ) starts from them instead of evaluating the grid again."""
+_GRIDS_KEPT = 4
+
+
+def _grid_key(problem: Problem, accuracy, steady) -> tuple:
+    """What the grid's evaluations depend on (everything but the targets' values)."""
+    rates = tuple(problem.base["bpm"] if t.bpm is None else t.bpm for t in problem.targets)
+    heads = problem.heads_mmHg
+    return (
+        problem.scene,
+        problem.space,
+        tuple(sorted(problem.base.items())),
+        None if heads is None else tuple(heads),
+        rates,
+        accuracy,
+        steady,
+    )
+
+
+def _evaluate_grid(evaluate, z_grid, key, pump):
+    """(values, jac, ok) of the grid: evaluated in batches of REFINE, or those kept for ``key``
+    (with a surrogate of the same numbers)."""
+    kept = _GRIDS.get(key)
+    if kept is not None and np.array_equal(kept[1], z_grid):
+        same = kept[0] is pump or bool(eqx.tree_equal(kept[0], pump))
+        if same:
+            return kept[2], True
     grid_evals = [evaluate(z_grid[k : k + REFINE]) for k in range(0, GRID, REFINE)]
-    values = np.concatenate([e[0] for e in grid_evals])
-    jac = np.concatenate([e[1] for e in grid_evals])
-    ok = np.concatenate([e[2] for e in grid_evals])
+    evals = tuple(np.concatenate([e[i] for e in grid_evals]) for i in range(3))
+    _GRIDS[key] = (pump, z_grid, evals)
+    while len(_GRIDS) > _GRIDS_KEPT:
+        _GRIDS.pop(next(iter(_GRIDS)))
+    return evals, False
+
+
+def _grid_search(problem: Problem, evaluate, record: SearchRecord, z_grid, say, t0, key, pump):
+    """Evaluate the coarse grid: ((values, jac, ok) of every candidate, the seconds since ``t0``
+    that were not the search's compile)."""
+    d = z_grid.shape[1]
+    (values, jac, ok), reused = _evaluate_grid(evaluate, z_grid, key, pump)
     r, _ = residuals(problem, values, jac, rates_of(problem, z_grid, d))
     s, _ = secondary_objective(problem, values, jac)
     record.add(z_grid, values, ok, r, s)
@@ -96,8 +133,9 @@ def _grid_search(problem: Problem, evaluate, record: SearchRecord, z_grid, say, 
     n_ok = int(ok.all(axis=1).sum())
     best_grid = np.min(np.where(ok.all(axis=1), np.max(np.abs(r), axis=1), np.inf))
     say(
-        f"grid: {GRID} candidates ({n_ok} solved), best max |residual| {best_grid:.3g} ml; "
-        f"compile {evaluate.compile_s:.1f} s, grid {grid_s:.2f} s"
+        f"grid: {GRID} candidates ({n_ok} solved{', kept from the last search' * reused}), "
+        f"best max |residual| {best_grid:.3g} ml; compile {evaluate.compile_s:.1f} s, grid "
+        f"{grid_s:.2f} s"
     )
     return (values, jac, ok), grid_s
 
@@ -229,8 +267,10 @@ def optimise(
       they trade peak force against efficiency, or against mechanical work with
       ``minimize="mech_work"``.
     - ``accuracy``: the solver preset of the search (default: the scene's, as the verifying
-      run uses; ``"fast"`` is faster and less accurate). ``steady``: ``"shooting"`` or
-      ``"beats"`` (:func:`cardiosoft.solve_beats`).
+      run uses; ``"fast"`` is faster and less accurate). ``steady``: how the search finds the
+      periodic orbits, ``"shooting"`` or ``"beats"`` (:func:`cardiosoft.solve_beats`), or
+      ``"auto"`` (the default: shooting on the water-column bench, beats on a Windkessel
+      scene; :func:`cardiosoft.design.search.steady_method`).
     - ``max_rounds``: refinement rounds at most. ``map_lattice``: ``(n_omega, n_C)``, also
       map the stroke volume on that lattice for the figure (:attr:`DesignResult.sv_map`).
       ``progress``: a callable that receives one
@@ -247,66 +287,41 @@ def optimise(
     _check_options(problem, max_rounds, pareto, map_lattice, accuracy, steady)
     say = progress if progress is not None else (lambda line: None)
     pump = load() if pump is None else pump
+    steady = steady_method(problem.scene, steady)
     evaluate = Evaluator(problem, pump, accuracy, steady)
     record = SearchRecord(problem)
-    # The search's tracing first, alone: two threads tracing at once share Python's lock and
-    # took longer than one after the other (measured, #13); the prewarm's tracing then runs
-    # while XLA compiles the search.
-    t0 = time.perf_counter()
-    z_grid = grid_points(problem)
-    evaluate.trace(z_grid[:REFINE])
-    warmer = _Prewarm(problem, pump)
-    warmer.start()
-    # 1. the coarse grid; 2. refine the best few together
-    (values, jac, ok), grid_s = _grid_search(problem, evaluate, record, z_grid, say, t0)
-    chosen = select_candidates(problem, z_grid, values, jac, ok, REFINE)
-    t1 = time.perf_counter()
-    evals = (values[chosen], jac[chosen], ok[chosen])
-    mask = np.ones(z_grid.shape[1])
-    rounds, paths = refine(problem, evaluate, record, z_grid[chosen], evals, mask, max_rounds, say)
-    refine_s = time.perf_counter() - t1
+    seconds: dict = {}
+    rounds, paths, warmer = _search(
+        problem, evaluate, record, say, max_rounds, _grid_key(problem, accuracy, steady), seconds
+    )
     if record.best is None:
         best_z = problem.space.to_z(problem.start, problem.base)
         found = "no candidate solved; the start design is returned"
     else:
         best_z, found = record.best[1], ""
     design = {k: float(v[0]) for k, v in design_values(problem, best_z[None, :]).items()}
-    # 3. verification by the ordinary run() path
+    # 3. verification by the ordinary run() path, once the prewarm has compiled it
     t2 = time.perf_counter()
-    warmer.join()
-    wait_s = time.perf_counter() - t2
+    if warmer.ident is not None:  # started
+        warmer.join()
+    seconds["prewarm_wait_s"] = time.perf_counter() - t2
     t2 = time.perf_counter()
     records, runs = verify_design(problem, design, pump)
-    verify_s = time.perf_counter() - t2
+    seconds["verify_s"] = time.perf_counter() - t2
     targets = _target_results(problem, records, record)
     reached, objective_value, message = _verdict(problem, targets, found)
-    front, pareto_s = None, 0.0
+    front, lattice = None, None
+    seconds["pareto_s"] = seconds["map_s"] = 0.0
     if pareto:
         t3 = time.perf_counter()
         trade = "mech_work" if problem.objective == "mech_work" else "efficiency"
         front = pareto_trace(problem, evaluate, record, design, trade, say, max_rounds, pump)
-        pareto_s = time.perf_counter() - t3
-    lattice, map_s = None, 0.0
+        seconds["pareto_s"] = time.perf_counter() - t3
     if map_lattice is not None:
         t4 = time.perf_counter()
         lattice = sv_map(problem, evaluate, design, tuple(int(n) for n in map_lattice))
-        map_s = time.perf_counter() - t4
-    seconds = time.perf_counter() - start_time
-    calls = sorted(evaluate.call_s)
-    timings = {
-        "compile_s": evaluate.compile_s,
-        "trace_s": evaluate.trace_s,
-        "grid_s": grid_s,
-        "refine_s": refine_s,
-        "verify_s": verify_s,
-        "prewarm_s": warmer.seconds,
-        "prewarm_wait_s": wait_s,
-        "pareto_s": pareto_s,
-        "map_s": map_s,
-        "total_s": seconds,
-        "calls": evaluate.calls,
-        "call_median_s": calls[len(calls) // 2] if calls else math.nan,
-    }
+        seconds["map_s"] = time.perf_counter() - t4
+    total = time.perf_counter() - start_time
     return DesignResult(
         scene=problem.scene,
         design=design,
@@ -317,8 +332,8 @@ def optimise(
         objective=problem.objective,
         objective_value=objective_value,
         iterations=rounds,
-        seconds=seconds,
-        timings=timings,
+        seconds=total,
+        timings=_timings(evaluate, warmer, seconds, total),
         path=_winning_path(problem, record, paths, best_z),
         explored=record.explored(),
         pareto=front,
@@ -326,3 +341,48 @@ def optimise(
         message=message,
         sv_map=lattice,
     )
+
+
+def _search(problem: Problem, evaluate, record, say, max_rounds, key, seconds: dict):
+    """The coarse grid, then the best few refined together: (rounds, paths, the prewarm
+    thread). The verifying run() is compiled meanwhile on a second thread, unless this process
+    ran a search of this shape before (its run() is compiled then too)."""
+    # The search's tracing first, alone: two threads tracing at once share Python's lock and
+    # took longer than one after the other (measured, #13); the prewarm's tracing then runs
+    # while XLA compiles the search.
+    t0 = time.perf_counter()
+    z_grid = grid_points(problem)
+    warm = evaluate.compiled(z_grid[:REFINE])
+    evaluate.trace(z_grid[:REFINE])
+    warmer = _Prewarm(problem, evaluate.pump)
+    if not warm:
+        warmer.start()
+    (values, jac, ok), seconds["grid_s"] = _grid_search(
+        problem, evaluate, record, z_grid, say, t0, key, evaluate.pump
+    )
+    chosen = select_candidates(problem, z_grid, values, jac, ok, REFINE)
+    t1 = time.perf_counter()
+    evals = (values[chosen], jac[chosen], ok[chosen])
+    mask = np.ones(z_grid.shape[1])
+    rounds, paths = refine(problem, evaluate, record, z_grid[chosen], evals, mask, max_rounds, say)
+    seconds["refine_s"] = time.perf_counter() - t1
+    return rounds, paths, warmer
+
+
+def _timings(evaluate, warmer, seconds: dict, total: float) -> dict:
+    """Where the time of :func:`optimise` went (:attr:`DesignResult.timings`)."""
+    calls = sorted(evaluate.call_s)
+    return {
+        "compile_s": evaluate.compile_s,
+        "trace_s": evaluate.trace_s,
+        "grid_s": seconds["grid_s"],
+        "refine_s": seconds["refine_s"],
+        "verify_s": seconds["verify_s"],
+        "prewarm_s": warmer.seconds,
+        "prewarm_wait_s": seconds["prewarm_wait_s"],
+        "pareto_s": seconds["pareto_s"],
+        "map_s": seconds["map_s"],
+        "total_s": total,
+        "calls": evaluate.calls,
+        "call_median_s": calls[len(calls) // 2] if calls else math.nan,
+    }

@@ -198,6 +198,10 @@ class Evaluator:
         )
         return args, key
 
+    def compiled(self, z: np.ndarray) -> bool:
+        """Whether this process has the programs for the shape of ``z`` already."""
+        return self._args(z)[1] in self._compiled
+
     def trace(self, z: np.ndarray) -> None:
         """Trace and lower for the shape of ``z`` now, each program then compiling on a thread
         of its own while the next is traced (tracing holds Python's lock, XLA does not)."""

@@ -78,11 +78,13 @@ class DesignResult:
     - ``iterations``: refinement rounds; ``seconds``: wall time of :func:`optimise`;
       ``timings``: where it went, in s: ``trace_s`` and ``compile_s`` (tracing, and tracing
       plus XLA's compilation, of the search's two programs; 0 when this process had compiled
-      them already), ``grid_s``, ``refine_s``, ``verify_s`` (the final run()), ``prewarm_s``
-      (the run() of the start design on a second thread, which compiles the verification
-      meanwhile), ``prewarm_wait_s`` (how long the verification waited for
-      it), ``pareto_s``, ``map_s``, ``total_s``; ``calls`` and ``call_median_s`` of the
-      compiled function.
+      them already), ``grid_s`` (the coarse grid; its evaluations are kept for a further
+      target of the same scene, space, afterloads and rates), ``refine_s``, ``verify_s`` (the
+      final run()), ``prewarm_s`` (the run() of the start design on a second thread, which
+      compiles the verification meanwhile; NaN when the search's programs were compiled
+      already, and the run()'s with them), ``prewarm_wait_s`` (how long the verification
+      waited for it), ``pareto_s``, ``map_s``, ``total_s``; ``calls`` and ``call_median_s`` of
+      the compiled function.
     - ``path``: the design after each accepted step of the winning candidate, from its grid
       point; ``explored``: every design evaluated (``z`` transformed, user units) with its
       stroke volumes (ml, per target) and whether its solve succeeded and was steady.

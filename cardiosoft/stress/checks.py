@@ -131,86 +131,85 @@ def physical_problems(m: dict[str, float]) -> list[tuple[str, str, set[str]]]:
     efficiency, delivered / work in, lies in [0, 1] to within the account's own residual (the
     losses are >= 0 and the shell's stored energy comes back each beat).
     """
-    out = []
+    out: list[tuple[str, str, set[str]]] = []
 
     def bad(violated: bool, check: str, what: str, *excuses: str):
         if violated:
             out.append((f"physical/{check}", what, set(excuses)))
 
-    def outside(v, lo, hi):
-        return v < lo or v > hi
-
     if "edv" in m:
-        edv, esv = m["edv"], m["esv"]
-        volumes = f"EDV {edv:.6g}, ESV {esv:.6g} m^3"
-        bad(edv <= 0 or esv <= 0, "volume", f"{volumes}: not positive", "extrapolated")
-        bad(esv > edv or m["stroke_volume"] < 0, "volume", f"{volumes}: SV < 0")
-        ef = m["ejection_fraction"]
-        bad(outside(ef, 0, 1), "ejection fraction", f"EF {ef:.6g} outside [0, 1]", "extrapolated")
-        co = m["cardiac_output"]
-        bad(co < 0, "cardiac output", f"cardiac output {co:.6g} m^3/s < 0")
-        bad(m["min_pump_pressure"] > m["max_pump_pressure"], "pressure", "min pump pressure > max")
-        f, w = m["peak_force"], m["mech_work"]
-        bad(f < 0, "force", f"peak force {f:.6g} N < 0", "cable pushes")
-        bad(w < -1e-12, "work", f"mechanical work {w:.6g} J < 0", "cable pushes")
-        p = m["reference_pressure"]
-        bad(p < -1e-6 * mmHg, "pressure", f"reference pressure {p / mmHg:.6g} mmHg < 0")
-        e = m["efficiency"]
-        bad(outside(e, 0, 1), "efficiency", f"efficiency {e:.6g} outside [0, 1]", "efficiency")
-        e = m.get("energy_efficiency")
-        if e is not None:
-            slack = m.get("energy_residual", 0.0)
-            slack = slack if math.isfinite(slack) else 0.0
-            terms = {
-                k: m.get(f"{k}_change" if k == "stored" else f"work_{k}", math.nan)
-                for k in ("delivered", "in", "lost", "stored")
-            }
-            detail = (
-                "at the steady state ("
-                + ", ".join(f"{k} {v:.4g} J" for k, v in terms.items())
-                + ")"
-            )
-            # a cable that pushes turns the capstan friction into a negative loss: flagged
-            bad(
-                e < -slack,
-                "energy efficiency < 0",
-                f"energy efficiency {e:.6g} < 0 {detail}",
-                "transient",
-                "cable pushes",
-                "energy efficiency",
-                "energy account",
-            )
-            bad(
-                e > 1 + slack,
-                "energy efficiency > 1",
-                f"energy efficiency {e:.6g} > 1 {detail}",
-                "transient",
-                "cable pushes",
-                "energy efficiency",
-                "energy account",
-            )
-            lost, work_in = m.get("work_lost", 0.0), abs(m.get("work_in", 0.0))
-            bad(
-                lost < -slack * work_in,
-                "losses",
-                f"losses {lost:.4g} J < 0 (work in {work_in:.4g} J)",
-                "cable pushes",
-                "energy account",
-            )
+        _beat_problems(m, bad)
+        if m.get("energy_efficiency") is not None:
+            _energy_problems(m, bad)
     if "static_stroke_volume" in m:
-        sv, f = m["static_stroke_volume"], m["static_peak_force"]
-        w, e = m["static_mech_work"], m["static_efficiency"]
-        # round-off of the quasi-static root (V near 1e-4 m^3): 1e-9 ml
-        bad(sv < -1e-15, "static", f"static stroke volume {sv:.6g} m^3 < 0")
-        bad(f < 0, "static", f"static peak force {f:.6g} N < 0", "cable pushes")
-        bad(w < -1e-12, "static", f"static mechanical work {w:.6g} J < 0", "cable pushes")
-        bad(
-            outside(e, 0, 1),
-            "static",
-            f"static efficiency {e:.6g} outside [0, 1]",
-            "static efficiency",
-        )
+        _static_problems(m, bad)
     return out
+
+
+def _outside(v, lo, hi) -> bool:
+    return v < lo or v > hi
+
+
+def _beat_problems(m: dict[str, float], bad) -> None:
+    """Volumes, EF, cardiac output, pressures, force, work and efficiency of a beat."""
+    edv, esv = m["edv"], m["esv"]
+    volumes = f"EDV {edv:.6g}, ESV {esv:.6g} m^3"
+    bad(edv <= 0 or esv <= 0, "volume", f"{volumes}: not positive", "extrapolated")
+    bad(esv > edv or m["stroke_volume"] < 0, "volume", f"{volumes}: SV < 0")
+    ef = m["ejection_fraction"]
+    bad(_outside(ef, 0, 1), "ejection fraction", f"EF {ef:.6g} outside [0, 1]", "extrapolated")
+    co = m["cardiac_output"]
+    bad(co < 0, "cardiac output", f"cardiac output {co:.6g} m^3/s < 0")
+    bad(m["min_pump_pressure"] > m["max_pump_pressure"], "pressure", "min pump pressure > max")
+    f, w = m["peak_force"], m["mech_work"]
+    bad(f < 0, "force", f"peak force {f:.6g} N < 0", "cable pushes")
+    bad(w < -1e-12, "work", f"mechanical work {w:.6g} J < 0", "cable pushes")
+    p = m["reference_pressure"]
+    bad(p < -1e-6 * mmHg, "pressure", f"reference pressure {p / mmHg:.6g} mmHg < 0")
+    e = m["efficiency"]
+    bad(_outside(e, 0, 1), "efficiency", f"efficiency {e:.6g} outside [0, 1]", "efficiency")
+
+
+def _energy_problems(m: dict[str, float], bad) -> None:
+    """The energy efficiency in [0, 1] and the losses >= 0, to the account's own residual."""
+    e = m["energy_efficiency"]
+    slack = m.get("energy_residual", 0.0)
+    slack = slack if math.isfinite(slack) else 0.0
+    terms = {
+        k: m.get(f"{k}_change" if k == "stored" else f"work_{k}", math.nan)
+        for k in ("delivered", "in", "lost", "stored")
+    }
+    detail = "at the steady state (" + ", ".join(f"{k} {v:.4g} J" for k, v in terms.items()) + ")"
+    # a cable that pushes turns the capstan friction into a negative loss: flagged
+    excuses = ("transient", "cable pushes", "energy efficiency", "energy account")
+    below = f"energy efficiency {e:.6g} < 0 {detail}"
+    bad(e < -slack, "energy efficiency < 0", below, *excuses)
+    above = f"energy efficiency {e:.6g} > 1 {detail}"
+    bad(e > 1 + slack, "energy efficiency > 1", above, *excuses)
+    lost, work_in = m.get("work_lost", 0.0), abs(m.get("work_in", 0.0))
+    bad(
+        lost < -slack * work_in,
+        "losses",
+        f"losses {lost:.4g} J < 0 (work in {work_in:.4g} J)",
+        "cable pushes",
+        "energy account",
+    )
+
+
+def _static_problems(m: dict[str, float], bad) -> None:
+    """The quasi-static stroke's volume, force, work and efficiency."""
+    sv, f = m["static_stroke_volume"], m["static_peak_force"]
+    w, e = m["static_mech_work"], m["static_efficiency"]
+    # round-off of the quasi-static root (V near 1e-4 m^3): 1e-9 ml
+    bad(sv < -1e-15, "static", f"static stroke volume {sv:.6g} m^3 < 0")
+    bad(f < 0, "static", f"static peak force {f:.6g} N < 0", "cable pushes")
+    bad(w < -1e-12, "static", f"static mechanical work {w:.6g} J < 0", "cable pushes")
+    bad(
+        _outside(e, 0, 1),
+        "static",
+        f"static efficiency {e:.6g} outside [0, 1]",
+        "static efficiency",
+    )
 
 
 @dataclasses.dataclass(frozen=True)
