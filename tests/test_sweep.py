@@ -384,7 +384,9 @@ def test_grid_point_equals_simulate_at_that_design(cli):
         assert float(point[mine]) == pytest.approx(record[theirs], rel=1e-6), mine
     assert int(point["beats"]) == record["beats"]
     assert bool(point["steady"]) and record["ok"]
-    assert float(point["residual"]) == pytest.approx(record["steady_residual"], rel=1e-6)
+    # a difference of two states of ~100 (ml, ml/s, mmHg): held to what the states agree to
+    # (1e-6 of ~100), not relative to its own size (measured: 1.8e-8 apart on 5.9e-3)
+    assert float(point["residual"]) == pytest.approx(record["steady_residual"], abs=1e-4)
 
 
 def test_grid_points_equal_simulate_at_their_designs(tmp_path, swept):
@@ -419,7 +421,9 @@ def test_grid_points_equal_simulate_at_their_designs(tmp_path, swept):
             assert float(point[mine]) == pytest.approx(record[theirs], rel=1e-9), (head, mine)
         assert int(point["beats"]) == record["beats"] == BEATS
         assert bool(point["flagged"]) == bool(record["flags"])
-        assert float(point["residual"]) == pytest.approx(record["steady_residual"], rel=1e-9)
+        # a difference of two states of ~100 (ml, ml/s, mmHg): held to what the states
+        # themselves agree to, not relative to its own size
+        assert float(point["residual"]) == pytest.approx(record["steady_residual"], abs=1e-6)
 
 
 def one_error_line(stderr: str) -> bool:

@@ -35,6 +35,7 @@ __all__ = [
     "long_batches",
     "member_id",
     "preload_batches",
+    "rate_batches",
     "shooting_batches",
     "stiff_batches",
     "valve_batches",
@@ -254,17 +255,27 @@ def grid_batches(scenes, presets, bpms, cli_at=None) -> list[Batch]:
     return out
 
 
-def stiff_batches(scenes, bpms) -> list[Batch]:
-    """The stiffest afterloads the scene files allow (module docstring)."""
-    out = []
-    column_min = RANGES["column_diameter"][0] * mm
-    tube_max = RANGES["tube_length"][1] * mm
-    tube_narrow = RANGES["tube_diameter"][0] * mm
-    loss_max = RANGES["loss_coefficient"][1]
-    r_max = max(WINDKESSEL_RANGES["Rp"][1], WINDKESSEL_RANGES["Rd"][1]) * mmHg_s_per_ml
-    valve_max = VALVE_RESISTANCE_RANGE[1] * mmHg_s_per_ml
-    for name in water_column_scenes(scenes):
-        variants = {
+def rate_batches(group, name, label, tag, bpms, **options) -> list[Batch]:
+    """The design corners of scene ``name`` (``options``: of :func:`design_batch`) at each rate:
+    batches titled ``"<name> <label> <bpm> bpm"``, their cases
+    ``"<group>/<name>/<tag><bpm>bpm/..."``."""
+    return [
+        design_batch(
+            group,
+            name,
+            f"{name} {label} {fmt(bpm)} bpm",
+            f"{group}/{name}/{tag}{fmt(bpm)}bpm",
+            bpm=bpm,
+            **options,
+        )
+        for bpm in bpms
+    ]
+
+
+def _stiff_variants(name, column_min, tube_max, tube_narrow, loss_max, r_max, valve_max):
+    """{label: scene changes} of the stiffest afterloads of scene ``name``."""
+    if load_scene(name).afterload.has_heads:
+        return {
             "narrowest column": (("column_diameter", column_min),),
             "longest narrowest tube": (("tube_length", tube_max), ("tube_diameter", tube_narrow)),
             "largest exit loss": (("loss_coefficient", loss_max),),
@@ -275,46 +286,40 @@ def stiff_batches(scenes, bpms) -> list[Batch]:
                 ("loss_coefficient", loss_max),
             ),
         }
-        for label, changes in variants.items():
-            for bpm in bpms:
-                tag = label.replace(" ", "-")
-                out.append(
-                    design_batch(
-                        "stiff",
-                        name,
-                        f"{name} {label} {fmt(bpm)} bpm",
-                        f"stiff/{name}/{tag}/{fmt(bpm)}bpm",
-                        bpm=bpm,
-                        changes=changes,
-                    )
-                )
-    for name in windkessel_scenes(scenes):
-        rp, c, rd = load_scene(name).windkessel
-        variants = {
-            "resistances max": (
-                ("windkessel", (r_max, c, r_max)),
-                ("valve_resistance", (valve_max, valve_max)),
-            ),
-        }
-        c_min = WINDKESSEL_RANGES["C"][0]
-        variants[f"C {fmt(c_min)} ml/mmHg"] = (("windkessel", (rp, c_min * ml_per_mmHg, rd)),)
-        variants[f"C {fmt(c_min)} ml/mmHg, resistances max"] = (
+    rp, c, rd = load_scene(name).windkessel
+    c_min = WINDKESSEL_RANGES["C"][0]
+    return {
+        "resistances max": (
+            ("windkessel", (r_max, c, r_max)),
+            ("valve_resistance", (valve_max, valve_max)),
+        ),
+        f"C {fmt(c_min)} ml/mmHg": (("windkessel", (rp, c_min * ml_per_mmHg, rd)),),
+        f"C {fmt(c_min)} ml/mmHg, resistances max": (
             ("windkessel", (r_max, c_min * ml_per_mmHg, r_max)),
             ("valve_resistance", (valve_max, valve_max)),
-        )
-        for label, changes in variants.items():
-            for bpm in bpms:
+        ),
+    }
+
+
+def stiff_batches(scenes, bpms) -> list[Batch]:
+    """The stiffest afterloads the scene files allow (module docstring)."""
+    limits = (
+        RANGES["column_diameter"][0] * mm,
+        RANGES["tube_length"][1] * mm,
+        RANGES["tube_diameter"][0] * mm,
+        RANGES["loss_coefficient"][1],
+        max(WINDKESSEL_RANGES["Rp"][1], WINDKESSEL_RANGES["Rd"][1]) * mmHg_s_per_ml,
+        VALVE_RESISTANCE_RANGE[1] * mmHg_s_per_ml,
+    )
+    out = []
+    for name in water_column_scenes(scenes) + windkessel_scenes(scenes):
+        heads = load_scene(name).afterload.has_heads
+        for label, changes in _stiff_variants(name, *limits).items():
+            if heads:
+                tag = label.replace(" ", "-")
+            else:
                 tag = label.replace(" ", "").replace(",", "-").replace("/", "per")
-                out.append(
-                    design_batch(
-                        "stiff",
-                        name,
-                        f"{name} {label} {fmt(bpm)} bpm",
-                        f"stiff/{name}/{tag}/{fmt(bpm)}bpm",
-                        bpm=bpm,
-                        changes=changes,
-                    )
-                )
+            out += rate_batches("stiff", name, label, f"{tag}/", bpms, changes=changes)
     return out
 
 
@@ -326,65 +331,42 @@ def valve_batches(scenes, bpms, ideal=True) -> list[Batch]:
         if ideal:
             variants["ideal"] = (("valve_kind", "ideal"),)
         for label, changes in variants.items():
-            for bpm in bpms:
-                tag = label.replace(" ", "")
-                out.append(
-                    design_batch(
-                        "valves",
-                        name,
-                        f"{name} valves {label} {fmt(bpm)} bpm",
-                        f"valves/{name}/{tag}/{fmt(bpm)}bpm",
-                        bpm=bpm,
-                        changes=changes,
-                    )
-                )
+            tag = label.replace(" ", "")
+            out += rate_batches("valves", name, f"valves {label}", f"{tag}/", bpms, changes=changes)
     return out
 
 
 def preload_batches(scenes, bpms) -> list[Batch]:
     """Atrial pressures of :data:`PRELOADS_MMHG`."""
     return [
-        design_batch(
-            "preload",
-            name,
-            f"{name} preload {fmt(p)} mmHg {fmt(bpm)} bpm",
-            f"preload/{name}/{fmt(p)}mmHg/{fmt(bpm)}bpm",
-            bpm=bpm,
-            changes=(("preload_pressure", p * mmHg),),
-        )
+        batch
         for name in windkessel_scenes(scenes)
         for p in PRELOADS_MMHG
-        for bpm in bpms
+        for batch in rate_batches(
+            "preload",
+            name,
+            f"preload {fmt(p)} mmHg",
+            f"{fmt(p)}mmHg/",
+            bpms,
+            changes=(("preload_pressure", p * mmHg),),
+        )
     ]
 
 
 def long_batches(scenes, bpms) -> list[Batch]:
     """:data:`LONG_BEATS` beats exactly."""
+    label, tag = f"{LONG_BEATS} beats", f"{LONG_BEATS}beats/"
     return [
-        design_batch(
-            "long",
-            name,
-            f"{name} {LONG_BEATS} beats {fmt(bpm)} bpm",
-            f"long/{name}/{LONG_BEATS}beats/{fmt(bpm)}bpm",
-            bpm=bpm,
-            beats=LONG_BEATS,
-        )
+        batch
         for name in dynamic_scenes(scenes)
-        for bpm in bpms
+        for batch in rate_batches("long", name, label, tag, bpms, beats=LONG_BEATS)
     ]
 
 
 def shooting_batches(scenes, bpms) -> list[Batch]:
     """The periodic steady state by Newton shooting."""
     return [
-        design_batch(
-            "shooting",
-            name,
-            f"{name} shooting {fmt(bpm)} bpm",
-            f"shooting/{name}/{fmt(bpm)}bpm",
-            bpm=bpm,
-            steady="shooting",
-        )
+        batch
         for name in dynamic_scenes(scenes)
-        for bpm in bpms
+        for batch in rate_batches("shooting", name, "shooting", "", bpms, steady="shooting")
     ]
