@@ -1,24 +1,183 @@
-"""Shared plumbing of the command-line entry points: error reporting, the compile cache.
+"""What the command lines share: their parser and options, and their process set-up.
 
-Numerics never live here; safe file output is :mod:`cardiosoft.files`.
+Numerics never live here. Every command (``cardiosoft simulate|design|sweep|stress|geometry``,
+or ``python -m cardiosoft.X``) builds its parser with :func:`command_parser`: argparse's own
+errors are one line and exit status 2, like every other bad input, and ``--help`` ends with the
+command's exit status (:data:`EXIT_STATUS`). What a command prints, its flags, failures and exit
+status are :mod:`cardiosoft.console`'s; writing outputs whole, :mod:`cardiosoft.files`'s; a
+command's own process is set up by :func:`prepare_process` (XLA flags, the compile cache).
 """
 
 from __future__ import annotations
 
+import argparse
+import math
 import os
 import sys
 import tempfile
 from pathlib import Path
 
-EXIT_BAD_INPUT = 2
+from cardiosoft.console import EXIT_BAD_INPUT
+
 CACHE_VARIABLE = "CARDIOSOFT_COMPILE_CACHE"
 """``0`` switches the compile cache off; a folder puts it there (:func:`use_compile_cache`)."""
+EXIT_STATUS = (
+    "exit status: 0 when it did what was asked (flags: {flags}; they are printed as warnings "
+    "and listed under 'flags' in {output}); 1 when {failure}; 2 for bad input (one line, "
+    "nothing written). --strict turns a flag into exit status 1."
+)
+"""The exit-status paragraph of every command's ``--help`` (DESIGN.md section 4)."""
 
 
-def fail(err: BaseException) -> int:
-    """Print one line for a bad input and return the CLI's bad-input exit code."""
-    print(f"error: {err}", file=sys.stderr)
-    return EXIT_BAD_INPUT
+# ------------------------------------------------------------------------------ the parser
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse whose errors are one line and exit status 2, like every other bad input."""
+
+    def error(self, message):
+        print(f"error: {message} (see {self.prog} --help)", file=sys.stderr)
+        raise SystemExit(EXIT_BAD_INPUT)
+
+
+def command_parser(
+    name: str, description: str, *, prog: str | None = None, flags=None, failure=None, output=""
+) -> Parser:
+    """The parser of ``cardiosoft <name>`` (``prog``; default ``python -m cardiosoft.<name>``),
+    its help ending with the exit status: what a flag and a failure are for this command
+    (``flags``, ``failure``: phrases; None for a command that has neither)."""
+    if flags is None:
+        epilog = "exit status: 0 when it did what was asked; 2 for bad input (one line)."
+    else:
+        epilog = EXIT_STATUS.format(flags=flags, failure=failure, output=output or "the output")
+    return Parser(
+        prog=prog or f"python -m cardiosoft.{name}", description=description, epilog=epilog
+    )
+
+
+def allowed(field: str, left: str = "[") -> str:
+    """The allowed range of a scene number (:data:`cardiosoft.scene.RANGES`), as help text."""
+    from cardiosoft.scene import RANGES
+
+    lo, hi = RANGES[field]
+    return f"{left}{lo:g}, {hi:g}]"
+
+
+def add_scene_option(parser, *, static: bool = True) -> None:
+    """``--scene``: a shipped scene or a .toml file (``static``: bench-static listed too)."""
+    from cardiosoft.scene import LOOP_SCENE_NAMES, SCENE_NAMES
+
+    names = [s for s in SCENE_NAMES if static or s != "bench-static"]
+    parser.add_argument(
+        "--scene",
+        default="bench-dynamic",
+        help=f"shipped scene ({', '.join(names)}; closed loops: {', '.join(LOOP_SCENE_NAMES)}) "
+        "or a scene .toml file (default: bench-dynamic)",
+    )
+
+
+def add_output_options(parser, files: str, *, plot: str | None = None) -> None:
+    """``--out DIR`` (``files`` written there), ``--no-plot`` (when a ``plot`` is among them:
+    its name), ``--force``."""
+    parser.add_argument("--out", metavar="DIR", help=f"write {files} there")
+    if plot is not None:
+        parser.add_argument("--no-plot", action="store_true", help=f"with --out: skip {plot}")
+    parser.add_argument("--force", action="store_true", help="overwrite existing files in --out")
+
+
+def add_report_options(parser) -> None:
+    """``--strict`` and ``--quiet``."""
+    parser.add_argument(
+        "--strict", action="store_true", help="exit with status 1 when anything is flagged"
+    )
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+
+
+def values_argument(items):
+    """argparse's list of ``nargs="+"`` strings as :func:`cardiosoft._validate.parse_values`
+    takes it: one item as it is (it may be START:STOP:N), several as numbers."""
+    if items is None:
+        return None
+    from cardiosoft._validate import parse_values
+
+    if len(items) == 1:
+        return items[0]
+    out = []
+    for item in items:
+        out += parse_values(item, "value")
+    return out
+
+
+def fmt(value, spec: str) -> str:
+    """A number of a printed table: ``-`` for none or a non-finite one."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value, spec)
+
+
+def table(header, units, rows) -> str:
+    """A printed table: a header line, a units line, then the rows, each column right-aligned."""
+    widths = [max(len(x) for x in col) for col in zip(header, units, *rows, strict=True)]
+    line = "  ".join
+    out = [
+        line(h.rjust(w) for h, w in zip(header, widths, strict=True)),
+        line(u.rjust(w) for u, w in zip(units, widths, strict=True)),
+    ]
+    out += [line(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------ the process
+
+
+FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+"""XLA flags for a process whose time is compiling. Measured on the design search's programs
+(CPU seconds of XLA's compile, one thread, jaxlib 0.10.2, 2 loaded cores): the classic emitters
+compile the bench's orbits in 5.2-5.8 s against 6.9-7.8 s and their derivatives in 2.5-3.2 s
+against 5.9-6.8 s, lv-systemic's in 8.7 and 3.6 s against 10.0 and 8.5 s; the compiled calls
+are no slower (lv-systemic's orbits 1.0 s against 1.3 s)."""
+
+
+def fast_compile_flags() -> tuple[str, ...]:
+    """:data:`FAST_COMPILE_FLAGS` that the installed XLA takes: XLA aborts the process on a flag
+    it does not know, so the emitters' flag is given only to the jaxlib it was measured with
+    (the 0.10 series; pyproject.toml allows < 0.11)."""
+    from importlib import metadata
+
+    try:
+        major_minor = tuple(int(p) for p in metadata.version("jaxlib").split(".")[:2])
+    except (metadata.PackageNotFoundError, ValueError):
+        major_minor = (0, 0)
+    return FAST_COMPILE_FLAGS if major_minor >= (0, 10) else FAST_COMPILE_FLAGS[:1]
+
+
+def prepare_process(tool: str, argv) -> None:
+    """Settings of a command's own process, made before JAX starts its backend: never by a
+    library import or a ``main()`` that a test calls in-process.
+
+    - simulate, design and ``stress --quick``: XLA's optimisation level 0. Their time is
+      compiling: LLVM's optimisation of the generated CPU code is about a third of it and buys
+      little for a few solves (simulate's results agree to 1e-13; a design search's calls run
+      about 3x slower, ~0.15 s against 0.05 s on the bench, which tens of calls hardly notice).
+      With jaxlib 0.10 (where it was measured) also XLA's classic CPU emitters instead of its
+      fusion emitters (:data:`FAST_COMPILE_FLAGS`).
+    - sweep, in this process (not with ``--workers`` / ``--scheduler``, whose workers share the
+      cores): as many XLA host devices as cores, so that each chunk is sharded over all of them
+      (``benchmarks/sweep_throughput.py``, section 4).
+    - simulate, design and sweep: the compile cache (:func:`use_compile_cache`).
+
+    An ``XLA_FLAGS`` of the user's own is left as it is.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    options = {a.split("=")[0] for a in argv}
+    if tool in ("simulate", "design") or (tool == "stress" and "--quick" in options):
+        os.environ.setdefault("XLA_FLAGS", " ".join(fast_compile_flags()))
+    elif tool == "sweep" and "xla_force_host_platform_device_count" not in flags:
+        if not {"--workers", "--scheduler"} & options:
+            count = f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"
+            os.environ["XLA_FLAGS"] = f"{flags} {count}".strip()
+    if tool in ("simulate", "design", "sweep"):
+        use_compile_cache()  # the next process loads what this one compiles
 
 
 def compile_cache_folder() -> Path | None:
@@ -39,8 +198,9 @@ def use_compile_cache() -> Path | None:
 
     Nearly all of a fresh CLI process's time is tracing and compiling the same few programs
     (benchmarks/startup.py, benchmarks/design.py); tracing is redone, XLA compilation is not.
-    Call it in a ``__main__`` block only, before anything is compiled: library imports and the
-    ``main()`` functions (which tests call in-process) leave JAX's global settings alone.
+    Call it in a command's own process only (:func:`prepare_process`), before anything is
+    compiled: library imports and the ``main()`` functions (which tests call in-process) leave
+    JAX's global settings alone.
 
     - On by default; ``CARDIOSOFT_COMPILE_CACHE=0`` switches it off, ``=/some/folder`` moves it.
       A cache folder of the user's own (``JAX_COMPILATION_CACHE_DIR``) is kept as it is.

@@ -59,3 +59,40 @@ def check_range(
 def check_positive(name: str, value, unit: str, *, scale: float = 1.0):
     """``check_range`` for a strictly positive finite quantity."""
     return check_range(name, value, unit, 0.0, math.inf, lo_open=True, scale=scale)
+
+
+def parse_values(value, name: str) -> tuple[float, ...]:
+    """The values of one swept variable: ``"START:STOP:N"`` (N points from START to STOP, both
+    included), one number, or a sequence of numbers. ``ValueError`` names ``name``."""
+    if isinstance(value, str):
+        parts = value.split(":")
+        try:
+            numbers = [float(p) for p in parts]
+        except ValueError:
+            numbers = None
+        if numbers is None or len(parts) not in (1, 3):
+            raise ValueError(
+                f"{name} = {value!r}: allowed START:STOP:N (N points from START to STOP) or "
+                "one number"
+            )
+        if len(parts) == 1:
+            values = numbers
+        else:
+            start, stop, n = numbers
+            if n != int(n) or n < 1:
+                raise ValueError(f"{name} = {value!r}: N = {parts[2]} must be a whole number >= 1")
+            if int(n) > 1 and start == stop:
+                raise ValueError(
+                    f"{name} = {value!r}: an empty range (START = STOP with N > 1 points)"
+                )
+            values = np.linspace(start, stop, int(n)).tolist()
+    else:
+        try:
+            values = [float(v) for v in np.atleast_1d(np.asarray(value, dtype=float)).ravel()]
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} = {value!r}: allowed numbers or START:STOP:N") from None
+    if not values:
+        raise ValueError(f"{name}: an empty range; give at least one value")
+    if len(set(values)) != len(values):
+        raise ValueError(f"{name} = {value!r}: the values repeat; give each value once")
+    return tuple(values)

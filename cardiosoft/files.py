@@ -9,10 +9,17 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_path", "check_writable_folder", "refuse_overwrite", "sha256"]
+__all__ = [
+    "atomic_path",
+    "check_writable_folder",
+    "refuse_overwrite",
+    "sha256",
+    "write_together",
+]
 
 
 def refuse_overwrite(path, force: bool) -> None:
@@ -34,6 +41,24 @@ def atomic_path(path):
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+
+
+@contextlib.contextmanager
+def write_together(folder):
+    """Yield a staging folder inside ``folder``: the files written there are moved into
+    ``folder`` (each by an atomic rename, in the order they were written) when the block ends,
+    none if it raises; the staging folder is removed either way. For a command's outputs, so
+    that a failure halfway leaves no half of them behind."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=folder, prefix=".staging-"))
+    try:
+        yield staging
+        written = sorted(staging.iterdir(), key=lambda p: (p.stat().st_mtime_ns, p.name))
+        for path in written:
+            path.replace(folder / path.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 def sha256(path) -> str:

@@ -59,10 +59,10 @@ def test_steady_state_gradient_matches_central_differences(pump):
     About 55 s on two busy cores, 40 s of it compiling the search's function, which the
     recovery and unreachable-target tests below then reuse (run alone, the first of them pays
     the compile instead)."""
-    problem = design._problem(
+    problem = design.problem.build_problem(
         "bench-dynamic", 70.0, None, HEADS, BPM, design.DEFAULT_FREE, None, None, None, None, 0.5
     )
-    evaluate = design._Evaluator(problem, pump, None, "shooting")
+    evaluate = design.programs.Evaluator(problem, pump, None, "shooting")
     at = problem.base | {"omega": 4.0, "shortening": 0.4}
     z = np.repeat(problem.space.to_z(at, problem.base)[None, :], design.REFINE, axis=0)
     values, jac, ok, _ = evaluate(z)
@@ -85,6 +85,32 @@ def test_steady_state_gradient_matches_central_differences(pump):
     base = cs.run(scene, bpm=BPM, afterload=HEADS, pump=pump, omega=4.0, shortening=0.4)
     sv0 = [m.metrics["stroke_volume"] / ml for m in base.members]
     np.testing.assert_allclose(values[0, :, 0], sv0, atol=0.05)
+
+
+def test_search_jacobian_matches_central_differences_of_its_own_orbits(pump):
+    """The search's derivatives (implicit, at the periodic orbit found by Newton shooting)
+    against central differences of the orbits the same compiled programs find at z +- h: one
+    batch of the search (the other tests of this module share its compile), independent runs
+    being the slow test's. Held to 1 %: measured 0.14 % (SV), 0.06 % (peak force) and 0.04 %
+    (mechanical work), the same at h = 1e-2, 1e-3 and 1e-4 in z, so it is the adaptive steps'
+    method error (their sizes follow the design; the derivative holds them), not the
+    differences'."""
+    problem = design.problem.build_problem(
+        "bench-dynamic", 70.0, None, HEADS, BPM, design.DEFAULT_FREE, None, None, None, None, 0.5
+    )
+    evaluate = design.programs.Evaluator(problem, pump, None, "shooting")
+    z0 = problem.space.to_z(problem.base | {"omega": 4.0, "shortening": 0.4}, problem.base)
+    h = 1e-3
+    step = np.eye(2) * h
+    z = np.array([z0, z0 + step[0], z0 - step[0], z0 + step[1], z0 - step[1], z0, z0, z0])
+    values, jac, ok, _ = evaluate(z)
+    assert ok.all()
+    metrics = [design.programs.METRICS.index(k) for k in ("sv", "peak_force", "mech_work")]
+    for j in range(2):
+        central = (values[1 + 2 * j] - values[2 + 2 * j]) / (2 * h)
+        np.testing.assert_allclose(
+            jac[0][:, metrics, j], central[:, metrics], rtol=1e-2, err_msg=f"z[{j}]"
+        )
 
 
 @pytest.fixture(scope="module")
@@ -145,6 +171,25 @@ def test_unreachable_target_returns_the_closest_design_and_the_range(pump):
     record = r.to_json()
     json.dumps(record, allow_nan=False)  # no NaN anywhere in what design.json would hold
     assert record["reached"] is False
+    # an unreachable target is a flag, not a failure (every verifying run solved)
+    assert r.failures == () and r.flags[0] == r.message
+    assert record["flags"] == list(r.flags) and record["failures"] == []
+
+
+def test_command_line_reports_an_unreachable_target_as_a_flag(tmp_path, capsys):
+    """The same problem's shape as the in-process searches above (compiled once): exit 0 with
+    a warning, 1 with --strict; design.json holds the flags and the exit status."""
+    argv = ["--target-sv", "250", "--afterload", *map(str, HEADS), "--bpm", str(BPM)]
+    argv += ["--max-rounds", "2", "--no-plot"]
+    assert design.main([*argv, "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert any(line.startswith("warning: not reached") for line in err.splitlines()), err
+    assert "failed:" not in err
+    record = json.loads((tmp_path / "a" / "design.json").read_text())
+    assert record["reached"] is False and record["exit_status"] == 0
+    assert record["flags"][0].startswith("not reached") and record["failures"] == []
+    assert design.main([*argv, "--out", str(tmp_path / "b"), "--strict", "--quiet"]) == 1
+    assert json.loads((tmp_path / "b" / "design.json").read_text())["exit_status"] == 1
 
 
 @pytest.mark.parametrize(
@@ -172,7 +217,7 @@ def test_bad_input_raises_a_value_error_naming_it(kwargs, words):
 
 
 def test_targets_pair_up_with_afterloads_and_rates():
-    p = design._problem(
+    p = design.problem.build_problem(
         "bench-dynamic",
         [60, 70],
         None,
@@ -189,7 +234,7 @@ def test_targets_pair_up_with_afterloads_and_rates():
         (60, 30, 50),
         (70, 90, 70),
     ]
-    one = design._problem(
+    one = design.problem.build_problem(
         "bench-dynamic", 70, None, None, None, design.DEFAULT_FREE, None, None, None, None, 0.5
     )
     assert [(t.sv_ml, t.afterload_mmHg, t.bpm) for t in one.targets] == [
@@ -197,7 +242,7 @@ def test_targets_pair_up_with_afterloads_and_rates():
         (70, 60, 30),
         (70, 90, 30),
     ]
-    lv = design._problem(
+    lv = design.problem.build_problem(
         "lv-systemic", None, 5.0, None, [60, 80], design.DEFAULT_FREE, None, None, None, None, 0.5
     )
     assert [(t.co_l_min, t.afterload_mmHg, t.bpm) for t in lv.targets] == [
@@ -207,7 +252,7 @@ def test_targets_pair_up_with_afterloads_and_rates():
 
 
 def test_design_space_maps_inside_the_ranges_and_back():
-    p = design._problem(
+    p = design.problem.build_problem(
         "lv-systemic",
         70,
         None,
@@ -221,7 +266,7 @@ def test_design_space_maps_inside_the_ranges_and_back():
         0.5,
     )
     z = np.array([[-50.0, 50.0, 0.0, 30.0, 30.0], [0.3, -0.2, 1.0, -2.0, 0.5]])
-    v = design._design_values(p, z)
+    v = design.search.design_values(p, z)
     assert np.all((v["omega"] >= 0) & (v["omega"] <= 6))
     assert np.all((v["shortening"] >= 0) & (v["shortening"] <= 0.65))
     assert np.all((v["bpm"] > 40) & (v["bpm"] < 120))
@@ -361,9 +406,8 @@ def test_design_json_agrees_with_an_independent_simulate_run(tmp_path):
     compiling. The design search finds its orbits beat after beat (``--steady beats``), which
     compiles in about two thirds of the time of the default Newton shooting; the shooting
     search is tested in this process above, and what is checked here (the file against the
-    simulator) does not depend on it. The design found (Omega 1.14, C 0.569) drives the pump to
-    151 mmHg, past the surrogate's fitted 150: both tools flag it, and simulate exits 1 for
-    it, as it must for a flagged result."""
+    simulator) does not depend on it. A design that drives the pump past the surrogate's fitted
+    range is flagged by both tools, a warning that leaves the exit status 0."""
     out = tmp_path / "design"
     result = finish(
         launch("--target-sv", 70, "--afterload", 90, "--bpm", 60, "--steady", "beats", "--out", out)
@@ -401,7 +445,10 @@ def test_design_json_agrees_with_an_independent_simulate_run(tmp_path):
         text=True,
         timeout=600,
     )
-    assert check.returncode == (1 if target["flags"] else 0), check.stderr
+    assert check.returncode == 0, check.stderr
+    assert [
+        f.split(": ", 1)[1] for f in json.loads((sim / "summary.json").read_text())["flags"]
+    ] == target["flags"]
     (simulated,) = json.loads((sim / "summary.json").read_text())["records"]
     assert simulated["dynamic_sv_ml"] == pytest.approx(target["sv_ml"], abs=1e-6)
     assert simulated["peak_force_N"] == pytest.approx(target["peak_force_N"], abs=1e-6)

@@ -1,0 +1,201 @@
+"""The command line of design-space sweeps: ``cardiosoft sweep`` / ``python -m cardiosoft.sweep``.
+
+It parses and prints; the sweep is :func:`cardiosoft.sweep.design_sweep`'s.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from cardiosoft._cli import (
+    add_output_options,
+    add_report_options,
+    add_scene_option,
+    command_parser,
+    values_argument,
+)
+from cardiosoft.console import Console, fail
+from cardiosoft.sweep.chunk import NOT_STEADY, STATUS
+from cardiosoft.sweep.maps import map_keys
+from cardiosoft.sweep.plan import DEFAULT_CHUNK
+from cardiosoft.sweep.runner import design_sweep
+from cardiosoft.sweep.store import PARTIAL
+
+__all__ = ["main", "parser", "report_points", "summary"]
+
+
+def parser(prog: str | None = None):
+    """The argument parser of ``cardiosoft sweep``."""
+    from cardiosoft.scene import ACCURACY
+
+    p = command_parser(
+        "sweep",
+        "Design-space maps: simulate every point of a grid of designs (Omega x C), "
+        "afterloads and rates to its periodic steady state, keeping metrics only; write an "
+        "xarray Dataset (sweep.nc) and heat maps.",
+        prog=prog,
+        flags="points stopped after --beats N before the steady state",
+        failure="a point failed, or did not reach the periodic steady state it was run to",
+        output="sweep.nc ('steady', 'status')",
+    )
+    add_scene_option(p, static=False)
+    p.add_argument("--omega", required=True, metavar="START:STOP:N", help="helix parameter grid")
+    p.add_argument(
+        "--shortening", required=True, metavar="START:STOP:N", help="cable shortening C grid"
+    )
+    p.add_argument(
+        "--afterload",
+        nargs="+",
+        metavar="MMHG",
+        help="water-column heads in mmHg (default: the scene's); START:STOP:N allowed too",
+    )
+    p.add_argument(
+        "--bpm", nargs="+", metavar="BPM", help="beats per minute (default: the scene's)"
+    )
+    p.add_argument("--beats", type=int, help="run exactly this many beats (default: until steady)")
+    p.add_argument("--accuracy", choices=ACCURACY, help="solver preset (default: the scene's)")
+    p.add_argument(
+        "--chunk",
+        type=int,
+        default=DEFAULT_CHUNK,
+        metavar="N",
+        help=f"points per chunk, one compiled batch (default {DEFAULT_CHUNK})",
+    )
+    p.add_argument(
+        "--workers", type=int, metavar="N", help="start a local Dask cluster of N processes"
+    )
+    p.add_argument(
+        "--scheduler", metavar="ADDRESS", help="use the running Dask scheduler at ADDRESS"
+    )
+    p.add_argument("--resume", action="store_true", help="continue the unfinished sweep in --out")
+    add_output_options(p, "DIR/sweep.nc and DIR/map-*.png")
+    p.add_argument("--no-maps", action="store_true", help="with --out: skip the figures")
+    add_report_options(p)
+    return p
+
+
+def _best_efficiency(cut, coords) -> str:
+    """The most efficient steady point of one map, as text."""
+    steady_mask = cut["steady"].values
+    eff = cut["efficiency"].values
+    note = ""
+    if steady_mask.sum():
+        eff = np.where(steady_mask, eff, np.nan)
+    elif np.isfinite(eff).any():
+        note = " (no point steady)"
+    if not np.isfinite(eff).any():
+        return "-"
+    i, j = np.unravel_index(np.nanargmax(eff), eff.shape)
+    return f"{eff[i, j]:.3f} at ({coords['omega'][i]:g}, {coords['shortening'][j]:g}){note}"
+
+
+def summary(ds) -> str:
+    """Per afterload and bpm: steady points, SV range, the best-efficiency design."""
+    lines = [
+        "afterload    bpm  steady      SV ml     peak F N   best efficiency at (Omega, C)",
+    ]
+    coords = {d: tuple(np.asarray(ds[d]).tolist()) for d in ds.dims}
+    for head, rate in map_keys(coords):
+        sel = {"bpm": rate} | ({} if head is None else {"afterload_mmHg": head})
+        cut = ds[["stroke_volume_ml", "peak_force_N", "efficiency", "steady"]].sel(sel).load()
+        sv, force = cut["stroke_volume_ml"].values, cut["peak_force_N"].values
+        steady = int(cut["steady"].values.sum())
+        best = _best_efficiency(cut, coords)
+        with np.errstate(all="ignore"):
+            sv_range = f"{np.nanmin(sv):5.1f}-{np.nanmax(sv):5.1f}"
+            f_range = f"{np.nanmin(force):5.1f}-{np.nanmax(force):5.1f}"
+        if not np.isfinite(sv).any():
+            sv_range = f_range = "-"
+        head_txt = "-" if head is None else f"{head:g} mmHg"
+        lines.append(
+            f"{head_txt:>9}  {rate:5g}  {steady:6d}  {sv_range:>11}  {f_range:>11}   {best}"
+        )
+    return "\n".join(lines)
+
+
+def _check(args) -> None:
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers {args.workers}: allowed a whole number >= 1")
+    if args.workers is not None and args.scheduler is not None:
+        raise ValueError("--workers and --scheduler: give one of them")
+    if args.resume and not args.out:
+        raise ValueError("--resume needs --out DIR, the folder of the unfinished sweep")
+    if args.chunk < 1:
+        raise ValueError(f"--chunk {args.chunk}: allowed a whole number of points >= 1")
+
+
+def main(argv=None, prog: str | None = None) -> int:
+    """``cardiosoft sweep``: returns the exit status."""
+    import jax
+
+    args = parser(prog).parse_args(argv)
+    jax.config.update("jax_enable_x64", True)
+    import warnings
+
+    console = Console(quiet=args.quiet, strict=args.strict)
+    try:
+        _check(args)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Dask's notes on ports and memory are not errors
+            ds = design_sweep(
+                args.scene,
+                omega=args.omega,
+                shortening=args.shortening,
+                afterload=values_argument(args.afterload),
+                bpm=values_argument(args.bpm),
+                beats=args.beats,
+                accuracy=args.accuracy,
+                out=args.out,
+                chunk=args.chunk,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                resume=args.resume,
+                force=args.force,
+                maps=not args.no_maps,
+                progress=not args.quiet,
+                log=console.say,
+            )
+    except (ValueError, FileNotFoundError) as err:
+        return fail(err)
+    except KeyboardInterrupt:
+        where = (
+            f"; rerun with --resume to continue ({Path(args.out) / PARTIAL})" if args.out else ""
+        )
+        print(f"interrupted{where}", file=sys.stderr)
+        return 130
+    if not args.quiet:
+        print(summary(ds))
+    report_points(console, ds, fixed_beats=args.beats is not None)
+    ds.close()
+    return console.status()
+
+
+def report_points(console: Console, ds, fixed_beats: bool) -> None:
+    """Points that failed or missed the steady state (a failure; with ``--beats N`` a point
+    still in a transient is a flag), and points whose numbers are flagged."""
+    status = np.asarray(ds["status"]).ravel()
+    counts = np.bincount(status, minlength=len(STATUS))
+    total = status.size
+    failing = [
+        k for k in range(1, len(STATUS)) if counts[k] and (k != NOT_STEADY or not fixed_beats)
+    ]
+    if failing:
+        detail = ", ".join(f"{counts[k]} {STATUS[k]}" for k in failing)
+        console.fail("", f"{sum(counts[k] for k in failing)} of {total} points ({detail})")
+    if fixed_beats and counts[NOT_STEADY]:
+        console.flag(
+            "",
+            f"{counts[NOT_STEADY]} of {total} points not steady after --beats "
+            f"{int(ds.attrs['max_beats'])} (a transient; 'steady' false in the Dataset)",
+        )
+    flagged = int(np.asarray(ds["flagged"]).sum())
+    if flagged:
+        console.flag(
+            "",
+            f"{flagged} of {total} points flagged: a pump pressure outside the surrogate's fitted "
+            "range, a cable that would push or an efficiency that is not meaningful ('flagged' "
+            "in the Dataset)",
+        )
