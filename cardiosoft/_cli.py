@@ -63,16 +63,18 @@ def allowed(field: str, left: str = "[") -> str:
     return f"{left}{lo:g}, {hi:g}]"
 
 
-def add_scene_option(parser, *, static: bool = True) -> None:
-    """``--scene``: a shipped scene or a .toml file (``static``: bench-static listed too)."""
+def add_scene_option(parser, *, static: bool = True, loops: bool = False) -> None:
+    """``--scene``: a shipped scene or a .toml file (``static``: bench-static listed too;
+    ``loops``: the closed-loop scenes too)."""
     from cardiosoft.scene import LOOP_SCENE_NAMES, SCENE_NAMES
 
     names = [s for s in SCENE_NAMES if static or s != "bench-static"]
+    closed = f"; closed loops: {', '.join(LOOP_SCENE_NAMES)}" if loops else ""
     parser.add_argument(
         "--scene",
         default="bench-dynamic",
-        help=f"shipped scene ({', '.join(names)}; closed loops: {', '.join(LOOP_SCENE_NAMES)}) "
-        "or a scene .toml file (default: bench-dynamic)",
+        help=f"shipped scene ({', '.join(names)}{closed}) or a scene .toml file "
+        "(default: bench-dynamic)",
     )
 
 
