@@ -9,7 +9,7 @@ import math
 from collections.abc import Iterable
 
 from cardiosoft.pump import Domain
-from cardiosoft.results import MemberResult
+from cardiosoft.results import ENERGY_ROUNDOFF, MemberResult
 from cardiosoft.stress.cases import Case
 from cardiosoft.units import mmHg
 
@@ -187,8 +187,12 @@ def _energy_problems(m: dict[str, float], bad) -> None:
     above = f"energy efficiency {e:.6g} > 1 {detail}"
     bad(e > 1 + slack, "energy efficiency > 1", above, *excuses)
     lost, work_in = m.get("work_lost", 0.0), abs(m.get("work_in", 0.0))
+    # the losses are what the account leaves of energies of the size of the shell's strain
+    # energy U: a vanishing stroke's losses are round-off of U (hypothesis found -1.5e-16 J
+    # with U ~ 0.5 J at C 1e-184), not a sign of an unphysical solve
+    roundoff = ENERGY_ROUNDOFF * abs(m.get("stored_energy", 0.0))
     bad(
-        lost < -slack * work_in,
+        lost < -(slack * work_in + roundoff),
         "losses",
         f"losses {lost:.4g} J < 0 (work in {work_in:.4g} J)",
         "cable pushes",
