@@ -240,6 +240,10 @@ def use_compile_cache() -> Path | None:
             )
             return None
         jax.config.update("jax_compilation_cache_dir", str(folder))
+    # JAX stores only programs that took over 1 s to compile; whether the static strokes do
+    # depends on the machine and its load (CI once compiled them faster and never stored
+    # them). The CLI's programs are few and small on disk: store them all.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     if "EQX_ON_ERROR" not in os.environ:
         import equinox._errors
 
