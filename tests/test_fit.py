@@ -164,7 +164,9 @@ def test_card_states_what_the_fit_holds(card):
 
 def test_card_records_the_data_it_was_fitted_on(card):
     data_dir = REPO / "fit" / "data"
-    csvs = sorted(p.name for p in data_dir.glob("*.csv"))
+    # membrane_inflation.csv (python -m fit.membrane) came after format 3's fit, which does
+    # not read it: the swelling branch that fits it is issue #23's format 4
+    csvs = sorted(p.name for p in data_dir.glob("*.csv") if p.name != "membrane_inflation.csv")
     assert sorted(card["data_sha256"]) == csvs
     for name, digest in card["data_sha256"].items():
         assert sha256(data_dir / name) == digest, name
