@@ -102,18 +102,103 @@ def _assert_same(actual, expected, key, rel):
 
 
 # ------------------------------------------------------------------- the artifact and its card
-def test_artifact_reproduces_its_card(data, card, report_proc, monkeypatch):
+@pytest.fixture(scope="module")
+def shipped_metrics(data, card):
+    """The fit report's metrics recomputed from the shipped weights and the data files (not
+    read from the card): what the card and the acceptance bounds below are checked on."""
     # the same functions compiled whole instead of op by op (saves ~10 s; `python -m fit
-    # --report` below runs them eagerly)
-    for name in ("bench_prediction", "fem_prediction"):
-        monkeypatch.setattr(pipeline, name, jax.jit(getattr(pipeline, name)))
-    m = report.metrics(load(), fitting.rig_from_card(card), data)
+    # --report` runs them eagerly)
+    jitted = {n: jax.jit(getattr(pipeline, n)) for n in ("bench_prediction", "fem_prediction")}
+    with pytest.MonkeyPatch.context() as mp:
+        for name, fn in jitted.items():
+            mp.setattr(pipeline, name, fn)
+        return report.metrics(load(), fitting.rig_from_card(card), data)
+
+
+def test_artifact_reproduces_its_card(card, shipped_metrics, report_proc):
+    m = shipped_metrics
     shared = sorted(set(m) & set(card["metrics"]))
     assert len(shared) >= 20
     # recorded by the fit: 25 refits of stage 1, one of stage 2 without the 60-mmHg force
     assert set(card["metrics"]) - set(m) == {"table1_loo_mae_ml", "peak_force_left_out"}
     for key in shared:
         _assert_same(m[key], card["metrics"][key], key, 1e-6)
+
+
+# ----------------------------------------------- the shipped artifact against the paper's data
+def _paper_fem_error_on_table2(data):
+    """The paper's FEM (Table I) against its experiments (Table II), mean |error| in ml of the
+    108.6-ml cavity: the bar the surrogate must pass on the same held-out cells."""
+    t1, t2 = data.table1_fem, data.table2_experiment
+    fem = [float(t1["ef_percent"][(t1["omega"] == o) & (t1["shortening"] == c)][0])
+           for o, c in zip(t2["omega"], t2["shortening"], strict=True)]
+    a, b, h = 60.0, 30.0, 50.0  # mm: the cavity below the apex plane, pi B^2 (h - h^3 / 3A^2)
+    vu_ml = np.pi * b**2 * (h - h**3 / (3 * a**2)) / 1e3
+    return float(np.mean(np.abs(np.asarray(fem) - t2["ef_percent"])) / 100 * vu_ml)
+
+
+def test_table_two_held_out_within_1_5_ml_and_below_the_papers_fem(data, shipped_metrics):
+    """Table II (experiments) is never fitted: the surrogate, fitted to the FEM (Table I, whose
+    grid the experiments sit on), is judged on the experiments."""
+    assert shipped_metrics["table2_mae_ml"] <= 1.5
+    assert shipped_metrics["table2_mae_ml"] < _paper_fem_error_on_table2(data)
+
+
+def test_table_one_within_1_3_ml_and_every_fold_count(shipped_metrics):
+    assert shipped_metrics["table1_mae_ml"] <= 1.3
+    assert shipped_metrics["folds_wrong"] == 0  # of 34 cells, Tables I and II
+
+
+def test_static_stroke_volumes_within_the_papers_sd(data, shipped_metrics):
+    bench = data.fig10_bench
+    sv = np.asarray(shipped_metrics["static_sv_ml"])
+    assert np.all(np.abs(sv - bench["static_sv_ml"]) <= bench["static_sv_sd_ml"]), sv
+
+
+def test_quasi_static_peak_forces_within_5_percent(data, shipped_metrics):
+    force = np.asarray(shipped_metrics["peak_force_N"])
+    assert np.all(np.abs(force / data.fig10_bench["peak_force_N"] - 1) <= 0.05), force
+
+
+def test_mechanical_work_within_2_percent(data, shipped_metrics):
+    """The paper's M = P_a SV_dyn / e (section II-F) from the data files, against the
+    quasi-static pull's work (its energy balance)."""
+    b = data.fig10_bench
+    paper = b["afterload_mmHg"] * 133.322387415 * b["dynamic_sv_ml"] * 1e-6 / b["efficiency"]
+    work = np.asarray(shipped_metrics["mech_work_J"])
+    assert np.all(np.abs(work / paper - 1) <= 0.02), work / paper - 1
+
+
+def test_fem_efficiencies_within_0_02(data, shipped_metrics):
+    """The FEM's efficiencies of helical and longitudinal pulls (section III-C) within 0.02:
+    the third printed digit of the paper's 0.442 and 0.331 plus the model's own error of the
+    pressure at which the FEM evaluated them (not given; fitted)."""
+    fem = data.fem_comparisons
+    for omega, key in ((4.0, "fem_efficiency_helical"), (0.0, "fem_efficiency_longitudinal")):
+        row = (fem["quantity"] == "efficiency") & (fem["omega"] == omega)
+        assert abs(shipped_metrics[key] - float(fem["value"][row][0])) <= 0.02, key
+
+
+def test_the_potential_is_convex_in_volume_over_the_domain(shipped_metrics):
+    assert shipped_metrics["convexity_min_relative_stiffness"] >= pipeline.CONVEXITY_MARGIN
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="MODEL (issue #23): format 3 swells 41 ml at 90 mmHg at zero pull; the shell's "
+    "own inflation from the paper's Yeoh material (fit/data/membrane_inflation.csv) gives "
+    "about 14. Format 4, which fits it, is not shipped yet",
+)
+def test_the_shells_swelling_follows_its_own_inflation(data):
+    """The surrogate at zero pull against the Yeoh membrane's inflation of the same shell,
+    0 to 150 mmHg: within 10 % or 1 ml (issue #23)."""
+    m = data.membrane_inflation
+    pump = load()
+    rest = float(pump.unloaded_volume)
+    inside = np.asarray(m["pressure_mmHg"]) <= 150.0
+    for p_mmHg, truth in zip(m["pressure_mmHg"][inside], m["swelling_ml"][inside], strict=True):
+        v = float(pump.volume(jnp.asarray(p_mmHg * 133.322387415), 0.0, jnp.asarray(4.0)))
+        assert abs((v - rest) / 1e-6 - truth) <= max(0.1 * truth, 1.0), p_mmHg
 
 
 def test_card_metrics_are_consistent_with_the_tables(data, card):
@@ -240,8 +325,9 @@ def test_report_cli_verdicts_and_exit_code(report_run, card):
     m = dict(card["metrics"])  # the report recomputes all but the LOO value, which it reads
     verdicts = report.verdicts(m)
     assert len(verdicts) == len(report.TARGETS)
-    expected_rc = 0 if all(verdicts.values()) else 1
-    assert report_run.returncode == expected_rc, report_run.stderr[-2000:]
+    # every target met by the shipped artifact, so the report exits 0; a missed one exits 1
+    assert all(verdicts.values()), [k for k, ok in verdicts.items() if not ok]
+    assert report_run.returncode == 0, report_run.stdout[-2000:] + report_run.stderr[-2000:]
     out = report_run.stdout
     assert "HELD OUT" in out
     assert "no force law affine in the afterload gets closer than 6.5 %" in out
