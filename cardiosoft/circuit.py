@@ -31,8 +31,9 @@ import jax
 import jax.numpy as jnp
 
 from cardiosoft.actuation import CablePull
-from cardiosoft.circulation import AbstractAfterload, AbstractPreload, Valve
+from cardiosoft.circulation import AbstractAfterload, AbstractPreload
 from cardiosoft.pump import Chamber, PumpSurrogate
+from cardiosoft.valves import Valve
 
 __all__ = ["CableFriction", "PumpCircuit", "ShellViscoelasticity"]
 
@@ -111,7 +112,7 @@ class PumpCircuit(eqx.Module):
     - ``pump``: the :class:`~cardiosoft.pump.PumpSurrogate`; ``omega``: its helix parameter.
     - ``actuation``: the prescribed cable pull x(t), a :class:`~cardiosoft.actuation.CablePull`.
     - ``afterload``: an :class:`~cardiosoft.circulation.AbstractAfterload`.
-    - ``outlet_valve``, ``inlet_valve``: :class:`~cardiosoft.circulation.Valve` or None.
+    - ``outlet_valve``, ``inlet_valve``: :class:`~cardiosoft.valves.Valve` or None.
     - ``preload``: an :class:`~cardiosoft.circulation.AbstractPreload` or None (needs an inlet
       valve).
     - ``cable_friction``: a :class:`CableFriction` or None.

@@ -33,8 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cardiosoft.circulation import ArctanValve, Valve
 from cardiosoft.heart import AbstractChamber, PumpChamber, Vessel
+from cardiosoft.valves import ArctanValve, Valve
 
 __all__ = ["CHAMBERS", "VALVES", "VESSELS", "ClosedLoop"]
 
@@ -70,8 +70,8 @@ class ClosedLoop(eqx.Module):
     (:class:`~cardiosoft.heart.AbstractChamber`: elastance chambers or pumps, one period for
     all); the vessels ``ar_sys``, ``ven_sys``, ``ar_pul``, ``ven_pul``
     (:class:`~cardiosoft.heart.Vessel`); the valves ``mitral``, ``aortic``, ``tricuspid``,
-    ``pulmonary`` (:class:`~cardiosoft.circulation.ArctanValve` or
-    :class:`~cardiosoft.circulation.Valve`).
+    ``pulmonary`` (:class:`~cardiosoft.valves.ArctanValve` or
+    :class:`~cardiosoft.valves.Valve`).
     """
 
     la: AbstractChamber

@@ -4,7 +4,7 @@ The native heart is the lumped model of Regazzoni et al. 2022 ("A cardiac electr
 model coupled with a lumped-parameter model for closed-loop blood circulation", J. Comput. Phys.
 457, 111083; equations and defaults in ``notes/closed-loop-regazzoni.md``): four
 time-varying-elastance chambers, four RLC vessel compartments and four valves (the valve law is
-:class:`cardiosoft.circulation.ArctanValve`). The soft pump takes the place of a ventricle as a
+:class:`cardiosoft.valves.ArctanValve`). The soft pump takes the place of a ventricle as a
 :class:`PumpChamber`. :class:`cardiosoft.closed_loop.ClosedLoop` composes them.
 
 Everything is SI: volumes m^3, pressures Pa, flows m^3/s, elastances Pa/m^3, resistances

@@ -10,7 +10,7 @@ reads them (it hands a closed-loop file to :func:`parse_loop_scene`).
 A file has a table per chamber (``[la]``, ``[lv]``, ``[ra]``, ``[rv]``; ``type = "elastance"``
 or ``"pump"``), per vessel (``[ar_sys]``, ``[ven_sys]``, ``[ar_pul]``, ``[ven_pul]``), the
 ``[valves]`` (``law = "regazzoni"``, the paper's, or ``"smooth"``, the project's
-:class:`~cardiosoft.circulation.Valve`), the rate ``[heart] bpm`` and an optional ``[solve]``.
+:class:`~cardiosoft.valves.Valve`), the rate ``[heart] bpm`` and an optional ``[solve]``.
 Every number is in the user unit its key names and is checked against :data:`LOOP_KEYS` on
 load; a bad one raises one ``ValueError`` naming the file, key, value, unit and range.
 
@@ -27,12 +27,12 @@ from typing import ClassVar
 
 from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES, CablePull
-from cardiosoft.circulation import ArctanValve, Valve
 from cardiosoft.closed_loop import CHAMBERS, VALVES, VESSELS, ClosedLoop
 from cardiosoft.heart import Activation, ElastanceChamber, PumpChamber, Vessel
 from cardiosoft.pump import Domain, PumpSurrogate
 from cardiosoft.solve import ACCURACY_PRESETS as ACCURACY
 from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s2_per_ml, mmHg_s_per_ml
+from cardiosoft.valves import ArctanValve, Valve
 
 __all__ = [
     "LOOP_KEYS",
@@ -48,8 +48,8 @@ __all__ = [
 ]
 
 VALVE_LAWS = ("regazzoni", "smooth")
-"""``"regazzoni"``: :class:`~cardiosoft.circulation.ArctanValve`, the paper's; ``"smooth"``:
-:class:`~cardiosoft.circulation.Valve` with ``kind="smooth"``, the project's own."""
+"""``"regazzoni"``: :class:`~cardiosoft.valves.ArctanValve`, the paper's; ``"smooth"``:
+:class:`~cardiosoft.valves.Valve` with ``kind="smooth"``, the project's own."""
 
 _E = mmHg / ml
 _R = mmHg_s_per_ml

@@ -33,20 +33,12 @@ import jax
 
 from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES
-from cardiosoft.circulation import (
-    VALVE_KINDS,
-    VALVE_SMOOTHING,
-    AtrialSource,
-    Bench,
-    Tube,
-    Valve,
-    WaterColumn,
-    Windkessel3,
-)
+from cardiosoft.circulation import AtrialSource, Bench, Tube, WaterColumn, Windkessel3
 from cardiosoft.loop_scene import LoopScene, parse_loop_scene
 from cardiosoft.pump import Domain
 from cardiosoft.solve import ACCURACY_PRESETS
 from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
+from cardiosoft.valves import VALVE_KINDS, VALVE_SMOOTHING, Valve
 
 __all__ = [
     "AFTERLOADS",

@@ -19,7 +19,6 @@ from cardiosoft.circulation import (
     AtrialSource,
     Bench,
     Tube,
-    Valve,
     WaterColumn,
     Windkessel2,
     Windkessel3,
@@ -28,6 +27,7 @@ from cardiosoft.circulation import (
 )
 from cardiosoft.solve import PRESETS, integrate, preset, respond
 from cardiosoft.units import RHO_WATER, G, ml, mm, mmHg
+from cardiosoft.valves import Valve
 
 R_UNIT = mmHg / ml  # 1 mmHg s/ml in SI
 C_UNIT = ml / mmHg  # 1 ml/mmHg in SI

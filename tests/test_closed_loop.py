@@ -22,7 +22,6 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import cardiosoft as cs
-from cardiosoft.circulation import ArctanValve
 from cardiosoft.heart import Activation
 from cardiosoft.loop_results import (
     LA_CONGESTION,
@@ -34,6 +33,7 @@ from cardiosoft.loop_results import (
 from cardiosoft.loop_scene import LoopScene, loop_circuit
 from cardiosoft.pump import Domain, load
 from cardiosoft.units import ml, mmHg
+from cardiosoft.valves import ArctanValve
 
 # --- the notes' model, in ml, mmHg, s ---------------------------------------------------------
 BPM = 72.0

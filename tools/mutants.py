@@ -91,7 +91,7 @@ MUTANTS = (
            "return 1.02 * self.elastance / beta**2 * (jnp.cosh(beta * self.strain(V)) - 1.0)",
            "the chamber's energy U_c(V) 2 % high (its pressure and force with it)"),
     # valve law
-    Mutant("valve-law", "cardiosoft/circulation.py",
+    Mutant("valve-law", "cardiosoft/valves.py",
            "return dp * jax.nn.sigmoid(dp / self.smoothing) / R",
            "return 1.02 * dp * jax.nn.sigmoid(dp / self.smoothing) / R",
            "the smooth valve passes 2 % more flow for a given pressure drop"),
