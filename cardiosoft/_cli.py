@@ -217,7 +217,7 @@ def use_compile_cache() -> Path | None:
       to the beat: a violation would give non-finite samples, which ``periodic_beats`` reports
       as a failed solve) and lineax's on the derivatives of a stiff solver's linear solves,
       which the implicit derivative of an orbit never feeds a NaN
-      (:func:`cardiosoft.solve.orbit_beat`). The whole analysis is in the commit that added
+      (:func:`cardiosoft.shooting.orbit_beat`). The whole analysis is in the commit that added
       this function.
     """
     import jax

@@ -84,7 +84,8 @@ from cardiosoft.loop_scene import LoopScene
 from cardiosoft.metrics import beat_metrics
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
-from cardiosoft.solve import SolverConfig, orbit_beat, periodic_beats, preset, shoot_periodic
+from cardiosoft.shooting import orbit_beat, shoot_periodic
+from cardiosoft.solve import SolverConfig, periodic_beats, preset
 from cardiosoft.static import column_stiffness, static_strokes
 from cardiosoft.units import RHO_WATER, G, bpm, mmHg
 
@@ -334,7 +335,7 @@ def solve_beats(
     - ``save``: ``"traces"``, ``"metrics"`` or ``"state"`` (:data:`SAVE_MODES`).
     - ``steady``: ``"beats"``, beat after beat from rest until the cycle-to-cycle change is
       below the scene's ``steady_tol``; or ``"shooting"``, :data:`GUESS_BEATS` beats, then
-      Newton's method on the one-beat map (:func:`cardiosoft.solve.shoot_periodic`), whose
+      Newton's method on the one-beat map (:func:`cardiosoft.shooting.shoot_periodic`), whose
       derivative is that of the periodic orbit itself (implicit function theorem), with beat
       after beat as the fallback. Ignored with a fixed number of ``beats``.
     - ``energy``: keep the energy account of every beat (:meth:`PumpCircuit.power`); the
@@ -411,7 +412,7 @@ def solve_orbit(
     samples it; ``residual`` is its cycle-to-cycle change, so ``steady`` says whether ``start``
     was on the orbit. The derivative (``jax.jvp``, ``jax.jacfwd``) is the periodic steady
     state's, by the implicit function theorem at ``start``
-    (:func:`cardiosoft.solve.orbit_beat`), whatever ``start``'s own derivative: at a converged
+    (:func:`cardiosoft.shooting.orbit_beat`), whatever ``start``'s own derivative: at a converged
     orbit that of ``solve_beats(steady="shooting")``. Finding the orbits without derivatives,
     then differentiating them here, compiles two smaller programs instead of one larger one
     (the design search does so, #13). A start that is not finite begins at rest instead (that

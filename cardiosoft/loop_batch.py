@@ -41,7 +41,8 @@ from cardiosoft.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
 from cardiosoft.metrics import trapezoid
 from cardiosoft.pump import PumpSurrogate, load
-from cardiosoft.solve import SolverConfig, periodic_beats, preset, shoot_periodic
+from cardiosoft.shooting import shoot_periodic
+from cardiosoft.solve import SolverConfig, periodic_beats, preset
 
 __all__ = [
     "LOOP_SAMPLES",
@@ -269,7 +270,7 @@ def solve_loop(
     - ``save``: ``"traces"`` (the last beat's signals, :meth:`ClosedLoop.signals`, with
       ``time``), ``"metrics"`` or ``"state"`` (:data:`~cardiosoft.batch.SAVE_MODES`).
     - ``steady``: ``"beats"`` or ``"shooting"`` (Newton on the one-beat map, the total blood
-      volume held; :func:`cardiosoft.solve.shoot_periodic`).
+      volume held; :func:`cardiosoft.shooting.shoot_periodic`).
     - ``pump``: the surrogate of the pump chambers (default the shipped one).
     - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default the scene's accuracy
       preset with Tsit5 in forward mode (:func:`loop_config`).

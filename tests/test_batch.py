@@ -21,7 +21,8 @@ from cardiosoft.batch import (
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import load
 from cardiosoft.scene import load_scene
-from cardiosoft.solve import SolverConfig, shoot_periodic
+from cardiosoft.shooting import shoot_periodic
+from cardiosoft.solve import SolverConfig
 from cardiosoft.units import ml, mmHg
 
 METRICS = ("stroke_volume", "peak_force", "mech_work", "efficiency")
@@ -271,7 +272,7 @@ def test_shooting_derivative_is_that_of_the_orbit(scene):
 
 
 def test_shooting_derivative_with_equal_steps_matches_central_differences(scene):
-    """The orbit's implicit derivative (cardiosoft.solve.orbit_beat), through the shooting solve
+    """The orbit's implicit derivative (cardiosoft.shooting.orbit_beat), through the shooting solve
     and through solve_orbit from the orbit's start (the design search's way), against central
     differences of converged orbits, in CI. 400 equal steps per beat, so that both sides of a
     difference see the same discretisation (as in the jacfwd test above). Measured 2026-12-02

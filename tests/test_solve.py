@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from cardiosoft.circulation import Windkessel3
-from cardiosoft.solve import SolverConfig, orbit_beat, respond
+from cardiosoft.shooting import orbit_beat
+from cardiosoft.solve import SolverConfig, respond
 from cardiosoft.units import mmHg
 
 PERIOD, EJECTION, SV = 0.8, 0.3, 70e-6  # s, s, m^3
