@@ -81,7 +81,7 @@ from cardiosoft.beat_solution import solution as _solution
 from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
 from cardiosoft.loop_batch import solve_loop
 from cardiosoft.loop_scene import LoopScene
-from cardiosoft.metrics import beat_metrics
+from cardiosoft.metrics import beat_metrics, trapezoid
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
 from cardiosoft.shooting import orbit_beat, shoot_periodic
@@ -236,8 +236,9 @@ def _metrics(circuit: PumpCircuit, ts, ys):
     signals = jax.vmap(circuit.signals)(ts, ys)
     if circuit.preload is None:  # the bench: P_a is the column head before the pull
         reference = circuit.afterload.node_pressure(circuit.afterload.init())
-    else:  # a Windkessel: the mean afterload pressure
-        reference = jnp.mean(signals["node_pressure"])
+    else:  # a Windkessel: the afterload pressure's mean over time (the samples are denser
+        # in the pull than after it, so not their plain mean)
+        reference = trapezoid(signals["node_pressure"], ts) / (ts[-1] - ts[0])
     energy = None
     if circuit.energy:
         first, last = (jax.tree_util.tree_map(lambda a, i=i: a[i], ys) for i in (0, -1))

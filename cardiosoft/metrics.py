@@ -38,7 +38,7 @@ class BeatMetrics(eqx.Module):
     mech_work: jax.Array
     """Integral of the measured cable force over the pull, the paper's M (J)."""
     reference_pressure: jax.Array
-    """P_a: the column head before the pull, or the mean afterload pressure (Pa)."""
+    """P_a: the column head before the pull, or the afterload pressure's mean over time (Pa)."""
     hydraulic_work_paper: jax.Array
     """P_a SV, the paper's hydraulic work (J)."""
     hydraulic_work_pull: jax.Array
