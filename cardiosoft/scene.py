@@ -32,6 +32,7 @@ from typing import ClassVar
 import jax
 
 from cardiosoft._scene_file import _Number, _Reader
+from cardiosoft._validate import check_range
 from cardiosoft.actuation import BPM_RANGE, SHAPES
 from cardiosoft.circulation import AtrialSource, Bench, Tube, WaterColumn, Windkessel3
 from cardiosoft.loop_scene import LoopScene, parse_loop_scene
@@ -172,6 +173,23 @@ class Scene:
     def replace(self, **changes) -> Scene:
         """A copy with ``changes`` applied (already in SI), validated like a file."""
         return _validated(dataclasses.replace(self, **changes))
+
+    def column_heads_mmHg(self, given=None, *, action: str) -> tuple[float, ...] | None:
+        """The column heads (mmHg) a request runs at: ``given`` (numbers in mmHg), else the
+        scene's own, checked against :data:`RANGES`. None for an afterload without a column
+        head (a Windkessel), where giving heads is a ``ValueError`` saying it has none to
+        ``action`` ("set", "sweep")."""
+        if not self.afterload.has_heads:
+            if given is not None:
+                raise ValueError(
+                    f"afterload: scene {self.name} has a {self.afterload_type} afterload, which "
+                    f"has no column head to {action}"
+                )
+            return None
+        heads = tuple(float(h) / mmHg for h in self.afterloads) if given is None else given
+        heads = tuple(float(h) for h in heads)
+        check_range("afterload", heads, "mmHg", *RANGES["afterloads"])
+        return heads
 
 
 _R = mmHg_s_per_ml

@@ -17,7 +17,6 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.scene import RANGES, Scene, load_scene
-from cardiosoft.units import mmHg
 
 __all__ = [
     "BOX_VARIABLES",
@@ -230,16 +229,10 @@ def _targets(scene: Scene, target_sv, target_co, afterload, bpm, bpm_free: bool)
     else:
         check_range("target cardiac output", values, "l/min", 0.0, math.inf, hi_open=True)
     counts = {"target_sv" if kind == "sv" else "target_co": values}
-    if scene.afterload.has_heads:
-        heads = as_values("afterload", afterload, "mmHg") if afterload is not None else None
-        heads = np.asarray(scene.afterloads) / mmHg if heads is None else heads
-        check_range("afterload", heads, "mmHg", *RANGES["afterloads"])
-        counts["afterload"] = heads
-    elif afterload is not None:
-        raise ValueError(
-            f"afterload: scene {scene.name} has a {scene.afterload_type} afterload, which has "
-            "no column head to set; give no afterload"
-        )
+    given = as_values("afterload", afterload, "mmHg") if afterload is not None else None
+    heads = scene.column_heads_mmHg(given, action="set")
+    if heads is not None:
+        counts["afterload"] = np.asarray(heads)
     rates = as_values("bpm", scene.bpm if bpm is None else bpm, "bpm")
     check_range("bpm", rates, "bpm", *RANGES["bpm"], lo_open=True)
     if bpm_free and rates.size != 1:

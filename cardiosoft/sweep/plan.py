@@ -137,21 +137,10 @@ def make_plan(
     }
     check_range("omega", coords["omega"], "", *RANGES["omega"])
     check_range("shortening C", coords["shortening"], "", *RANGES["shortening"])
-    if scene.afterload.has_heads:
-        from cardiosoft.units import mmHg
-
-        heads = (
-            tuple(h / mmHg for h in scene.afterloads)
-            if afterload is None
-            else parse_values(afterload, "afterload")
-        )
-        check_range("afterload", heads, "mmHg", *RANGES["afterloads"])
+    given = None if afterload is None else parse_values(afterload, "afterload")
+    heads = scene.column_heads_mmHg(given, action="sweep")
+    if heads is not None:
         coords["afterload_mmHg"] = heads
-    elif afterload is not None:
-        raise ValueError(
-            f"afterload: scene {scene.name} has a {scene.afterload_type} afterload, which has "
-            "no column head to sweep"
-        )
     coords["bpm"] = (scene.bpm,) if bpm is None else parse_values(bpm, "bpm")
     check_range("bpm", coords["bpm"], "bpm", *RANGES["bpm"], lo_open=True)
     if beats is not None:
