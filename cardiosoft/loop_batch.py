@@ -175,7 +175,9 @@ def _save_times(loop: ClosedLoop):
 
 
 @eqx.filter_jit
-def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save, steady):
+def _solve(
+    structure, numbers, pump, members, max_beats: int, tol, config, save, steady, guess, newton
+):
     def one(member):
         loop = loop_circuit(structure.with_numbers(numbers | member), pump)
         ts = None if save == "state" else _save_times(loop)
@@ -199,7 +201,8 @@ def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save,
                 loop.period,
                 ts,
                 closed=True,
-                guess_beats=min(GUESS_BEATS, max_beats),
+                guess_beats=min(guess, max_beats),
+                max_newton=newton,
                 **common,
             )
         else:
@@ -256,6 +259,8 @@ def solve_loop(
     steady: str = "beats",
     pump: PumpSurrogate | None = None,
     config: SolverConfig | None = None,
+    guess_beats: int = GUESS_BEATS,
+    max_newton: int = 8,
 ) -> BeatSolution:
     """Simulate a batch of members of a closed-loop scene to their periodic steady state.
 
@@ -274,6 +279,15 @@ def solve_loop(
     - ``pump``: the surrogate of the pump chambers (default the shipped one).
     - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default the scene's accuracy
       preset with Tsit5 in forward mode (:func:`loop_config`).
+    - ``guess_beats``: with ``steady="shooting"``, the beats from the scene's initial state
+      before Newton starts (default :data:`~cardiosoft.beat_solution.GUESS_BEATS`). Far from the
+      shipped designs a closed loop's slow venous mode needs more: from 5, Newton failed on 10
+      of 81 grid designs of ``tah`` and fell back to beats (each such batch 30 times slower);
+      from 30, on 3 (``cardiosoft.design.loop``).
+    - ``max_newton``: Newton's iterations at most, then beat after beat. The arctan valves
+      (a 1e7 ratio of closed to open resistance) make the one-beat map nearly kinked: near the
+      design box's corners Newton converges linearly, in 6-16 iterations on ``tah`` (Omega 6,
+      C 0.65 on the left).
 
     **Returns:** a :class:`~cardiosoft.batch.BeatSolution` whose ``metrics`` are
     :class:`LoopMetrics`; nothing is raised for a member that fails or is not steady.
@@ -295,7 +309,17 @@ def solve_loop(
     structure, numbers = _split(scene)
     method = "beats" if beats is not None else steady
     metrics, traces, out = _solve(
-        structure, numbers, pump, shard(members), max_beats, tol, config, save, method
+        structure,
+        numbers,
+        pump,
+        shard(members),
+        max_beats,
+        tol,
+        config,
+        save,
+        method,
+        int(guess_beats),
+        int(max_newton),
     )
     return solution(scene, members, config, metrics, traces, out, beats is not None)
 

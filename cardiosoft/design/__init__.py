@@ -82,11 +82,17 @@ each of :data:`REFINE` Omegas) and reports which of them trade peak force agains
 :mod:`~cardiosoft.design.result` (records and JSON), :mod:`~cardiosoft.design.figure`,
 :mod:`~cardiosoft.design.optimiser` (:func:`optimise`, which ties them together) and
 :mod:`~cardiosoft.design.cli` (the command line).
+
+**Closed loops** (``tah``, ``soft-lv``, ``soft-rv``) are designed by
+:func:`~cardiosoft.design.loop.optimise_loop` (:mod:`~cardiosoft.design.loop`, its command line
+:mod:`~cardiosoft.design.loop_cli`): a cardiac output with the mean atrial pressures at their
+targets, ``cardiosoft design --scene tah --target-co 5 --lap 8 --rap 5``.
 """
 
 from cardiosoft.design.chain import design_optimiser
 from cardiosoft.design.cli import main
 from cardiosoft.design.figure import plot_design
+from cardiosoft.design.loop import LoopDesignResult, LoopTarget, optimise_loop
 from cardiosoft.design.optimiser import optimise
 from cardiosoft.design.problem import (
     DEFAULT_FREE,
@@ -106,11 +112,14 @@ __all__ = [
     "REFINE",
     "TOLERANCE_ML",
     "DesignResult",
+    "LoopDesignResult",
+    "LoopTarget",
     "ParetoPoint",
     "Target",
     "TargetResult",
     "design_optimiser",
     "main",
     "optimise",
+    "optimise_loop",
     "plot_design",
 ]

@@ -48,7 +48,7 @@ def parser(prog: str | None = None):
         "steady state",
         output="design.json",
     )
-    add_scene_option(p, static=False)
+    add_scene_option(p, static=False, loops=True)
     _target_options(p)
     _search_options(p)
     add_output_options(p, "design.json and design.png", plot="the figure")
@@ -83,6 +83,13 @@ def _target_options(p) -> None:
         help=f"beats per minute, {allowed('bpm', '(')}; one, or one per target (default: the "
         "scene's)",
     )
+    for flag, atrium in (("--lap", "left"), ("--rap", "right")):
+        p.add_argument(
+            flag,
+            type=float,
+            metavar="MMHG",
+            help=f"closed-loop scenes: target mean {atrium}-atrial pressure, mmHg",
+        )
 
 
 def _search_options(p) -> None:
@@ -301,6 +308,7 @@ def main(argv=None, prog: str | None = None) -> int:
     jax.config.update("jax_enable_x64", True)
     from cardiosoft.design.optimiser import optimise
     from cardiosoft.files import refuse_overwrite
+    from cardiosoft.loop_scene import LoopScene
     from cardiosoft.scene import load_scene
 
     console = Console(quiet=args.quiet, strict=args.strict)
@@ -311,8 +319,15 @@ def main(argv=None, prog: str | None = None) -> int:
                 raise ValueError(f"--out {out_dir} exists and is not a folder")
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
-        kwargs = _arguments(args)
         scene = load_scene(args.scene)
+        if isinstance(scene, LoopScene):
+            from cardiosoft.design.loop_cli import run_loop_design
+
+            return run_loop_design(scene, args, out_dir, console)
+        for flag, value in (("--lap", args.lap), ("--rap", args.rap)):
+            if value is not None:
+                raise ValueError(f"{flag}: only a closed-loop scene has atria; {scene.name} not")
+        kwargs = _arguments(args)
         _check(scene, kwargs)
     except (ValueError, FileNotFoundError) as err:
         return fail(err)
