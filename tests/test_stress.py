@@ -1,11 +1,13 @@
-"""``cardiosoft.stress``, the hard-case suite (issue #14): its checks on made-up members (no
-solve), its plan (what it covers, and that it compiles few functions), hypothesis' draws (valid
-scenes over the whole allowed ranges), and the CI subset, ``python -m cardiosoft.stress --quick``,
-run as the CI runs it (a subprocess, under ~90 s on a loaded 2-core machine)."""
+"""``cardiosoft.stress``, the hard-case suite (issue #14; its closed loops, issue #26): its
+checks on made-up members (no solve), its plan (what it covers, and that it compiles few
+functions), hypothesis' draws (valid scenes over the whole allowed ranges), and the CI subset,
+``python -m cardiosoft.stress --quick``, run as the CI runs it (a subprocess, under ~90 s on a
+loaded 2-core machine)."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import subprocess
 import sys
@@ -14,10 +16,12 @@ from pathlib import Path
 import pytest
 
 from cardiosoft import stress
+from cardiosoft.loop_batch import SideMetrics
+from cardiosoft.loop_results import loop_flags
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import Domain
 from cardiosoft.results import MemberResult, flags
-from cardiosoft.scene import RANGES, SCENE_NAMES, load_scene
+from cardiosoft.scene import LOOP_SCENE_NAMES, RANGES, SCENE_NAMES, load_scene
 from cardiosoft.solve import ACCURACY_PRESETS
 from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s_per_ml
 
@@ -179,6 +183,120 @@ def test_a_quasi_static_stroke_above_the_fitted_range_must_be_flagged():
     assert [c for c, _ in problems] == ["extrapolated"]
 
 
+# --- the closed-loop check, on made-up members ------------------------------------------------
+def good_loop_metrics(pump_sides=("left",), **changes) -> dict[str, float]:
+    """A plausible closed-loop member at 72 bpm (SI, flat as loop_member_results keeps it): 70
+    ml strokes, 5 l/min each side, pressures inside every flag's band; a native side's pump
+    fields NaN, as the library defines them."""
+    side = dict(
+        edv=120 * ml,
+        esv=50 * ml,
+        stroke_volume=70 * ml,
+        ejection_fraction=70 / 120,
+        cardiac_output=84 * ml,
+        net_output=83 * ml,
+        arterial_systolic=120 * mmHg,
+        arterial_diastolic=80 * mmHg,
+        arterial_mean=95 * mmHg,
+        atrial_mean=8 * mmHg,
+        atrial_min=3 * mmHg,
+        ventricle_min_pressure=2 * mmHg,
+        ventricle_max_pressure=125 * mmHg,
+        stroke_work=1.0,
+        peak_force=60.0,
+        min_cable_force=1.0,
+        cable_work=1.5,
+    )
+    assert set(side) == {f.name for f in dataclasses.fields(SideMetrics)}
+    m = {}
+    for s in ("left", "right"):
+        m |= {f"{s}_{k}": v for k, v in side.items()}
+        if s not in pump_sides:
+            m |= {f"{s}_{k}": math.nan for k in stress.checks.PUMP_FIELDS}
+    m |= dict(pulmonary_volume=740 * ml, systemic_volume=2285 * ml, total_volume=3025 * ml)
+    return m | changes
+
+
+def loop_view(
+    raw=None,
+    *,
+    pump_sides=("left",),
+    succeeded=True,
+    steady=True,
+    message=None,
+    drift=1e-15,
+    residual=0.005,
+    bpm=72.0,
+):
+    """A closed-loop member as the runner builds it; its flags are the library's own."""
+    raw = good_loop_metrics(pump_sides) if raw is None else raw
+    if message is None:
+        message = "ok" if succeeded and steady else "?"
+    record = MemberResult(
+        "m", None, message == "ok", message, 30, residual, drift, dict(raw), {},
+        loop_flags(raw, pump_sides, Domain()),
+    )  # fmt: skip
+    member = stress.MemberView(raw, record, succeeded, steady)
+    capacity = stress.left_half_capacity(load_scene("soft-lv"))
+    return stress.LoopView(member, pump_sides, 60.0 / bpm, capacity)
+
+
+def loop_checks(v) -> list[str]:
+    return [check for check, _ in stress.check_loop_member(v)[0]]
+
+
+def test_a_good_closed_loop_member_passes_and_a_native_sides_nan_pump_fields_do_not_fail():
+    # the right side of soft-lv is native: its peak force, cable force and work are NaN
+    assert stress.check_loop_member(loop_view()) == ([], [])
+    native = loop_view(good_loop_metrics(()), pump_sides=())  # the heart: both sides native
+    assert stress.check_loop_member(native) == ([], [])
+    # a pump field on a native side that is not NaN is not what the library defines
+    odd = good_loop_metrics(right_peak_force=3.0)
+    assert loop_checks(loop_view(odd)) == ["native"]
+
+
+def test_a_nan_closed_loop_metric_fails():
+    assert loop_checks(loop_view(good_loop_metrics(left_edv=math.nan))) == ["finite"]
+    # the pump side's pump fields are not exempt
+    assert loop_checks(loop_view(good_loop_metrics(left_cable_work=math.nan))) == ["finite"]
+    said = "solver failed in beat 3: The maximum number of solver steps was reached."
+    failed = loop_view(good_loop_metrics(left_edv=math.inf), succeeded=False, message=said)
+    assert stress.check_loop_member(failed) == ([], [said])
+
+
+def test_closed_loop_blood_volume_has_the_suites_tolerance():
+    assert loop_checks(loop_view(drift=stress.VOLUME_TOL)) == []
+    assert loop_checks(loop_view(drift=2 * stress.VOLUME_TOL)) == ["volume"]
+
+
+def test_unequal_left_and_right_outputs_at_the_steady_state_fail():
+    """The allowance: the cycle change times the left half's capacity (2 ml + (1.2 + 16)
+    ml/mmHg x 1 mmHg = 19.2 ml per unit) over the beat, plus the trapezoid's share."""
+    capacity = stress.left_half_capacity(load_scene("soft-lv"))
+    assert capacity == pytest.approx(19.2 * ml, rel=1e-12)
+    period, residual, net = 60.0 / 72.0, 0.005, 83 * ml
+    allowed = capacity * residual / period + stress.BALANCE_QUADRATURE * net
+    inside = good_loop_metrics(right_net_output=net - 0.99 * allowed)
+    assert loop_checks(loop_view(inside)) == []
+    outside = good_loop_metrics(right_net_output=net - 1.01 * allowed)
+    assert loop_checks(loop_view(outside)) == ["balance"]
+    # the same gap is within what a larger cycle change allows
+    assert loop_checks(loop_view(outside, residual=2 * residual)) == []
+    # not steady, and saying so: a transient, flagged, its outputs need not balance
+    said = "not steady after 300 beats (cycle change 0.03 > 0.01): a transient"
+    problems, notes = stress.check_loop_member(loop_view(outside, steady=False, message=said))
+    assert problems == [] and notes == [said]
+    assert "steady" in loop_checks(loop_view(steady=False, message="ok"))
+
+
+def test_closed_loop_flags_are_notes_not_failures():
+    congested = good_loop_metrics(left_atrial_mean=25 * mmHg)
+    problems, notes = stress.check_loop_member(loop_view(congested))
+    assert problems == [] and [n.split(":")[0] for n in notes] == ["pulmonary congestion"]
+    case = stress.LoopCase("closed_loop/x", "closed_loop", "soft-lv", (("bpm", 72.0),))
+    assert stress.checks.outcome(case, problems, notes).status == "flagged"
+
+
 def test_known_failures_match_case_and_check(monkeypatch):
     case = stress.Case(
         "grid/bench-static/Omega=4,C=0.4,150mmHg", "grid", "bench-static", (), 4.0, 0.4, None, 150.0
@@ -274,10 +392,14 @@ def test_every_group_of_the_issue_is_planned():
 
 
 def compiled_functions(batches) -> set:
-    """What the batch solve compiles anew for (its static arguments), per batch."""
+    """What the batch solve compiles anew for (its static arguments), per batch: a closed
+    loop's structure (the shipped loops differ in their pumps), the member paths and size."""
     keys = set()
     for b in batches:
         scene = b.build_scene()
+        if isinstance(b, stress.LoopBatch):
+            keys.add(("loop", scene.pumps, tuple(b.members()), len(b)))
+            continue
         if scene.static:
             keys.add(("static", len(b)))
             continue
@@ -291,9 +413,13 @@ def compiled_functions(batches) -> set:
 def test_quick_subset_compiles_one_function_per_scene_structure():
     quick = stress.plan(quick=True)
     keys = compiled_functions(quick)
-    dynamic = [k for k in keys if k[0] != "static"]
-    assert ("static", 24) in keys and len(keys) == 3
+    dynamic = [k for k in keys if k[0] not in ("static", "loop")]
+    assert ("static", 24) in keys and len(keys) == 5
     assert len(dynamic) == 2  # the bench, a Windkessel
+    # the closed loops: the native heart and the two pumps of tah, one batch each
+    loops = [b for b in quick if isinstance(b, stress.LoopBatch)]
+    assert [b.scene for b in loops] == ["heart", "tah"]
+    assert {k[1] for k in keys if k[0] == "loop"} == {(), ("lv", "rv")}
     # the command line compiles its own solve: in the quick subset, the static scene's only
     assert [b.scene for b in quick if b.cli] == ["bench-static"]
     assert {b.group for b in quick} == set(stress.GROUPS) - {"cli", "long", "shooting"}
@@ -303,7 +429,59 @@ def test_quick_subset_compiles_one_function_per_scene_structure():
 
 
 def test_full_suite_compiles_a_handful_of_functions():
-    assert len(compiled_functions(stress.plan(examples=1))) <= 12
+    keys = compiled_functions(stress.plan(examples=1))
+    loops = [k for k in keys if k[0] == "loop"]
+    assert len(keys) - len(loops) <= 12
+    assert len(loops) == len(LOOP_SCENE_NAMES)  # one program per closed-loop structure
+
+
+def test_closed_loop_group_is_the_issue_group():
+    """Every closed-loop scene at 40-180 bpm; the soft-pump scenes at the design corners, tah's
+    pumps together and at opposite corners; one batch size per scene structure."""
+    batches = stress.plan(groups=["closed_loop"])
+    assert all(isinstance(b, stress.LoopBatch) and b.group == "closed_loop" for b in batches)
+    cases = [c for b in batches for c in b.cases()]
+    assert len({c.id for c in cases}) == len(cases)
+    assert stress.LOOP_BPMS == (40.0, 60.0, 72.0, 90.0, 120.0, 150.0, 180.0)
+    corners = {(o, c) for o in stress.GRID_OMEGAS for c in stress.GRID_SHORTENINGS}
+    for name in LOOP_SCENE_NAMES:
+        scene = load_scene(name)
+        mine = [dict(c.numbers) for c in cases if c.scene == name]
+        assert {m["bpm"] for m in mine} == set(stress.LOOP_BPMS), name
+        assert len({len(b) for b in batches if b.scene == name}) == 1, name
+        designs = {tuple((m[f"{p}.omega"], m[f"{p}.shortening"]) for p in scene.pumps)
+                   for m in mine}  # fmt: skip
+        if not scene.pumps:
+            assert designs == {()} and len(mine) == len(stress.LOOP_BPMS)
+            continue
+        # every rate at the scene as shipped: its own design is a corner
+        assert all((getattr(scene, p).omega, getattr(scene, p).shortening) in corners
+                   for p in scene.pumps)  # fmt: skip
+        together = {d for d in designs if len(set(d)) == 1}
+        assert together == {(c,) * len(scene.pumps) for c in corners}, name
+        if len(scene.pumps) == 2:
+            apart = designs - together
+            assert apart == {(c, stress.loop_cases.opposite_corner(*c)) for c in corners}
+            assert ((0.0, 0.01), (6.0, 0.65)) in apart and ((6.0, 0.65), (0.0, 0.01)) in apart
+            assert len(mine) == 2 * 12 * len(stress.LOOP_BPMS)
+        else:
+            assert len(mine) == 12 * len(stress.LOOP_BPMS)
+    # --scene and --bpm narrow it; an open scene has no closed-loop case
+    narrow = stress.plan(groups=["closed_loop"], scenes=["tah", "lv-systemic"], bpms=[90.0])
+    assert [b.title for b in narrow] == ["tah corners 90 bpm", "tah opposite corners 90 bpm"]
+    # the closed loops run in their group only
+    assert not any(isinstance(b, stress.LoopBatch) for b in stress.plan(groups=["grid"]))
+
+
+def test_closed_loop_case_runs_alone():
+    batch = stress.plan(groups=["closed_loop"], scenes=["tah"], bpms=[180.0])[1]
+    case = batch.cases()[0]
+    assert case.id == "closed_loop/tah/180bpm/lv:Omega=0,C=0.01;rv:Omega=6,C=0.65"
+    assert case.bpm == 180.0 and case.shortening == 0.01
+    code = case.reproduce()
+    assert code.startswith("from cardiosoft.loop_batch import solve_loop; solve_loop(")
+    members = eval(code.split("members=")[1].split(", save=")[0])  # the solve is not run here
+    assert members == dict(case.numbers) and set(members) == set(batch.members())
 
 
 # --- hypothesis' draws ------------------------------------------------------------------------
@@ -391,10 +569,12 @@ def test_main_runs_the_static_scene_in_process(capsys):
     assert rc == 0
 
 
-def test_quick_suite_passes():
-    """The CI subset, as CI runs it: no failure that is not a known one."""
+def test_quick_suite_passes(tmp_path):
+    """The CI subset, as CI runs it: no failure that is not a known one; the closed loops'
+    members in its report, none failed, and the native heart's passed (inside every band)."""
+    out = tmp_path / "cases.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "cardiosoft.stress", "--quick"],
+        [sys.executable, "-m", "cardiosoft.stress", "--quick", "--json", str(out)],
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -403,3 +583,11 @@ def test_quick_suite_passes():
     assert "group" in proc.stdout and "total" in proc.stdout, proc.stderr[-2000:]
     assert "FAILED " not in proc.stdout, proc.stdout[-6000:]
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
+    loops = {r["id"]: r for r in json.loads(out.read_text()) if r["group"] == "closed_loop"}
+    planned = [c.id for b in stress.plan(quick=True) if b.group == "closed_loop" for c in b.cases()]
+    assert sorted(loops) == sorted(planned) and len(planned) == 6
+    assert all(r["status"] in ("passed", "flagged") for r in loops.values()), loops
+    assert all(r["notes"] for r in loops.values() if r["status"] == "flagged")
+    assert [loops[f"closed_loop/heart/{b}bpm"]["status"] for b in (60, 180)] == ["passed"] * 2
+    row = next(line.split() for line in proc.stdout.splitlines() if line.startswith("closed_loop"))
+    assert row[1:2] == ["6"] and row[4] == "0", row  # cases, failed

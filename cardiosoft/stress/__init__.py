@@ -7,9 +7,10 @@
 
 **Cases.** Each group is a list of batches; a batch is one call of the public batch solve
 (:func:`cardiosoft.batch.solve_beats`, or :func:`~cardiosoft.batch.solve_static` for the static
-scene), its members the cases. Members of one batch share the scene's numbers and, so that the
-whole suite compiles a handful of functions, every batch of one scene structure has the same
-size (the 12 design corners, times the two column heads of a water-column scene):
+scene, :func:`~cardiosoft.loop_batch.solve_loop` for a closed loop), its members the cases.
+Members of one batch share the scene's numbers and, so that the whole suite compiles a
+handful of functions, every batch of one scene structure has the same size (the 12 design
+corners, times the two column heads of a water-column scene):
 
 - ``grid``: every shipped scene x bpm :data:`GRID_BPMS` x the design corners (Omega
   :data:`GRID_OMEGAS` x C :data:`GRID_SHORTENINGS`) x the column heads
@@ -34,6 +35,14 @@ size (the 12 design corners, times the two column heads of a water-column scene)
   must equal the API's :func:`~cardiosoft.results.summary_records`, its ``flags`` the records'
   flags, and the exit status must say what the records say (1 when a member is not ok; flags
   alone leave it 0).
+- ``closed_loop``: the closed-loop scenes (``heart``, ``soft-lv``, ``soft-rv``, ``tah``;
+  :func:`cardiosoft.loop_batch.solve_loop`, the members the scene's numbers by path) at the
+  rates :data:`LOOP_BPMS`, 40-180 bpm: the native ``heart`` at every rate in one batch; a
+  scene with soft pumps per rate at the design corners (every pump at the same corner: the
+  scenes' own design, Omega 4, C 0.4, is one) and, for ``tah``'s two pumps, at opposite
+  corners too (left at a corner, right at the one across the grid: left weak and right
+  strong, and the reverse). Only this group runs the closed loops; ``--scene`` and ``--bpm``
+  narrow it as they narrow the others.
 
 **Checks** (:func:`check_member`), for every case:
 
@@ -52,12 +61,29 @@ size (the 12 design corners, times the two column heads of a water-column scene)
   range: extrapolated; a cable that would push), and the quasi-static stroke's pressure, head
   plus column rise, inside the fitted range or flagged.
 
+A closed-loop member (:func:`check_loop_member`) gets the checks that apply to it (finite,
+volume, steadiness said; none of the pump scenes' energy and physical bounds) and two more:
+
+- a native side's pump fields (peak force, smallest cable force, cable work) are NaN by
+  definition, not a failure (a finite one is);
+- at the periodic steady state the left and right net outputs are equal to within what the
+  beat's cycle change allows (``residual`` times :func:`left_half_capacity` over the period,
+  plus :data:`BALANCE_QUADRATURE` for the trapezoid's means): mass balance of the left half.
+
+Its flags (:func:`cardiosoft.loop_results.loop_flags`: congestion, a collapsing atrium, blood
+piled up on one side, a pump's pressure outside the fitted range or a cable that would push)
+are notes: the case is flagged, not failed.
+
 **The quick subset** (``--quick``, the CI's): one compiled solve per scene structure (the
 static strokes, the bench, a Windkessel), the grid at 60 bpm (and 300 for the bench) with the
 default preset, one stiff case each, sharp valves, both preloads, hypothesis draws of the static
 scene's numbers and of the dynamic scenes' members (at the grid's rates: a member drawn from the
-whole range, 1e-308 bpm up, can run 16384 steps a beat, minutes for its batch), and the command
-line on the static scene. Longer runs are the full suite's.
+whole range, 1e-308 bpm up, can run 16384 steps a beat, minutes for its batch), the command
+line on the static scene, and the closed loops in one batch per structure
+(:func:`~cardiosoft.stress.loop_cases.quick_loop_batches`): ``heart`` at 60 and 180 bpm, and
+``tah`` at 60 and 180 bpm as shipped and at 180 bpm at the extreme opposite corners (left
+Omega 0, C 0.01 with right Omega 6, C 0.65, and the reverse). Longer runs are the full
+suite's.
 
 A case **passes** when every check holds and nothing is flagged; it is **flagged** when it holds
 but the member is flagged, not steady (and says so) or its solver failed (and says so); it
@@ -68,7 +94,8 @@ with its reason, not failing the run. The suite prints a progress line per batch
 ``--strict`` turns into exit status 1; a flagged case is neither (the library flagged its own
 numbers, as it should); 2 for bad input.
 
-**Where it lives.** :mod:`~cardiosoft.stress.cases` (what is run), :mod:`~cardiosoft.stress.draws`
+**Where it lives.** :mod:`~cardiosoft.stress.cases` (what is run),
+:mod:`~cardiosoft.stress.loop_cases` (the closed loops'), :mod:`~cardiosoft.stress.draws`
 (hypothesis), :mod:`~cardiosoft.stress.checks` (what is checked, outcomes, known failures),
 :mod:`~cardiosoft.stress.runner` (a batch through the API and the command line),
 :mod:`~cardiosoft.stress.suite` (:func:`plan`, :func:`run_suite`),
@@ -97,21 +124,33 @@ from cardiosoft.stress.cases import (
     valve_batches,
 )
 from cardiosoft.stress.checks import (
+    BALANCE_QUADRATURE,
     ENERGY_TOLS,
     KNOWN_FAILURES,
     VOLUME_TOL,
     KnownFailure,
+    LoopView,
     MemberView,
     Outcome,
+    check_loop_member,
     check_member,
+    left_half_capacity,
     physical_problems,
 )
 from cardiosoft.stress.cli import main
 from cardiosoft.stress.draws import property_batches
+from cardiosoft.stress.loop_cases import (
+    LOOP_BPMS,
+    LoopBatch,
+    LoopCase,
+    loop_batches,
+    quick_loop_batches,
+)
 from cardiosoft.stress.report import SuiteReport
 from cardiosoft.stress.suite import plan, run_suite
 
 __all__ = [
+    "BALANCE_QUADRATURE",
     "ENERGY_TOLS",
     "GRID_AFTERLOADS_MMHG",
     "GRID_BPMS",
@@ -120,6 +159,7 @@ __all__ = [
     "GROUPS",
     "KNOWN_FAILURES",
     "LONG_BEATS",
+    "LOOP_BPMS",
     "PRELOADS_MMHG",
     "SHARP_SMOOTHING_MMHG",
     "VALVE_RESISTANCE_RANGE",
@@ -129,17 +169,24 @@ __all__ = [
     "Batch",
     "Case",
     "KnownFailure",
+    "LoopBatch",
+    "LoopCase",
+    "LoopView",
     "MemberView",
     "Outcome",
     "SuiteReport",
+    "check_loop_member",
     "check_member",
     "grid_batches",
+    "left_half_capacity",
     "long_batches",
+    "loop_batches",
     "main",
     "physical_problems",
     "plan",
     "preload_batches",
     "property_batches",
+    "quick_loop_batches",
     "run_suite",
     "shooting_batches",
     "stiff_batches",

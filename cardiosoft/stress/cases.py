@@ -78,7 +78,19 @@ PROPERTY_EXAMPLES = 4
 """Hypothesis examples per scene structure in the full suite (each one batch of members)."""
 
 
-GROUPS = ("grid", "stiff", "valves", "preload", "long", "shooting", "property", "cli")
+GROUPS = (
+    "grid",
+    "stiff",
+    "valves",
+    "preload",
+    "long",
+    "shooting",
+    "property",
+    "cli",
+    "closed_loop",
+)
+"""The groups of cases; ``closed_loop`` runs the closed-loop scenes
+(:mod:`cardiosoft.stress.loop_cases`), the others the open ones."""
 
 
 @dataclasses.dataclass(frozen=True)

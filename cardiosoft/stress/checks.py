@@ -1,5 +1,6 @@
-"""The checks of the hard-case suite (:func:`check_member`), for every case, and what a case's
-outcome is (:class:`Outcome`: passed, flagged, failed or a known failure)."""
+"""The checks of the hard-case suite (:func:`check_member`, for every case; with
+:func:`check_loop_member` for a closed loop's), and what a case's outcome is
+(:class:`Outcome`: passed, flagged, failed or a known failure)."""
 
 from __future__ import annotations
 
@@ -8,22 +9,30 @@ import fnmatch
 import math
 from collections.abc import Iterable
 
+from cardiosoft.loop_batch import SIDES
+from cardiosoft.loop_scene import LoopScene
 from cardiosoft.pump import Domain
 from cardiosoft.results import ENERGY_ROUNDOFF, MemberResult
 from cardiosoft.stress.cases import Case
-from cardiosoft.units import mmHg
+from cardiosoft.stress.loop_cases import LoopCase
+from cardiosoft.units import ml, mmHg
 
 __all__ = [
+    "BALANCE_QUADRATURE",
     "ENERGY_TOLS",
     "KNOWN_FAILURES",
+    "PUMP_FIELDS",
     "STATUSES",
     "VOLUME_TOL",
     "KnownFailure",
+    "LoopView",
     "MemberView",
     "Outcome",
+    "check_loop_member",
     "check_member",
     "flag_kinds",
     "known_reasons",
+    "left_half_capacity",
     "outcome",
     "physical_problems",
 ]
@@ -67,11 +76,12 @@ class KnownFailure:
     reason: str
     max_shortening: float | None = None
 
-    def covers(self, case: Case, check: str) -> bool:
+    def covers(self, case: Case | LoopCase, check: str) -> bool:
+        c = case.shortening  # None for a native closed loop: no pump, no shortening
         return (
             check == self.check
             and any(fnmatch.fnmatchcase(case.id, p) for p in self.cases)
-            and (self.max_shortening is None or case.shortening <= self.max_shortening)
+            and (self.max_shortening is None or (c is not None and c <= self.max_shortening))
         )
 
 
@@ -85,7 +95,7 @@ KNOWN_FAILURES: tuple[KnownFailure, ...] = ()
 class Outcome:
     """What the checks found for one case."""
 
-    case: Case
+    case: Case | LoopCase
     status: str
     """One of :data:`STATUSES`."""
     problems: tuple[tuple[str, str], ...] = ()
@@ -311,7 +321,96 @@ def check_member(v: MemberView, domain: Domain | None = None) -> tuple[list, lis
     return problems, notes
 
 
-def known_reasons(case: Case, problems) -> tuple[str, ...]:
+PUMP_FIELDS = ("peak_force", "min_cable_force", "cable_work")
+"""A closed-loop side's pump fields (:class:`~cardiosoft.loop_batch.SideMetrics`): NaN, by
+definition, for a native ventricle."""
+BALANCE_QUADRATURE = 5e-6
+"""Relative error allowed for the trapezoid's means of the arterial flows
+(:attr:`~cardiosoft.loop_batch.SideMetrics.net_output`, over
+:data:`~cardiosoft.loop_batch.LOOP_SAMPLES` samples of the beat). Estimated by halving the
+samples, |T(h) - T(2h)| (three times Richardson's estimate of a second-order error, and a
+bound of a first-order one too, for the flows' kinks), it was at most 7.6e-7 of the output
+over 134 steady members of the ``closed_loop`` group (save="traces": heart at every rate;
+soft-lv and soft-rv at the corners at 40, 90, 180 bpm; tah at 60 and 120 bpm together and
+opposite, at 180 together; the largest tah 60 bpm, left Omega 4, C 0.01, right Omega 0.3, C
+0.65); rounded up 6x. It is small beside the cycle change's share, ~1e-3 of the output at
+``steady_tol``, which alone held every measured gap with 3.5x to spare (the largest, 0.28 of
+it, heart at 180 bpm) (measured 2026-12)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopView:
+    """What :func:`check_loop_member` looks at: one member of a closed loop."""
+
+    member: MemberView
+    """Its flat metrics (``raw``: ``"{side}_{field}"`` of
+    :class:`~cardiosoft.loop_batch.LoopMetrics`, SI) and its record
+    (:func:`cardiosoft.loop_results.loop_member_results`, the closed loop's flags)."""
+    pump_sides: tuple[str, ...]
+    """The sides (``"left"``, ``"right"``) whose ventricle is a soft pump."""
+    period: float
+    """The beat (s)."""
+    capacity: float
+    """:func:`left_half_capacity` of the scene (m^3 per unit of cycle change)."""
+
+
+def left_half_capacity(scene: LoopScene) -> float:
+    """How much blood (m^3) the left half of the loop (pulmonary veins, left atrium, left
+    ventricle, systemic arteries) can gain over a beat per unit of the beat's cycle change
+    (:data:`cardiosoft.solve.PERIODIC_SCALES`: a chamber's volume changes by at most that many
+    ml, a vessel's pressure by that many mmHg, so its volume C p by C times that many mmHg)."""
+    return 2 * ml + (scene.ar_sys.compliance + scene.ven_pul.compliance) * mmHg
+
+
+def check_loop_member(v: LoopView, domain: Domain | None = None) -> tuple[list, list]:
+    """(problems, notes) of one closed-loop member: :func:`check_member` 's checks (finite,
+    volume, steadiness said; the closed loop's flags are notes), a native side's pump fields
+    NaN (by definition, not a failure; a finite one is), and at the steady state the left and
+    right net outputs equal to within what the beat's cycle change allows.
+
+    The left half of the loop gains over a beat of period T what the pulmonary arteries pass
+    into it less what the systemic arteries pass out: (net right - net left) T is its volume
+    change, at most the member's ``residual`` times :func:`left_half_capacity` (exactly zero
+    on the periodic orbit). So |net left - net right| <= residual capacity / T plus
+    :data:`BALANCE_QUADRATURE` of the larger for the trapezoid's means; at the scene's
+    ``steady_tol`` 0.01 that is 0.19 ml a beat for the shipped loops (0.58 ml/s at 180 bpm,
+    against net outputs of 13-128 ml/s)."""
+    raw = dict(v.member.raw)
+    problems = []
+    for side in SIDES:
+        if side in v.pump_sides:
+            continue
+        for field in PUMP_FIELDS:
+            value = raw.pop(f"{side}_{field}", math.nan)
+            if not math.isnan(value):
+                problems.append(("native", f"{side}_{field} = {value:.6g} on a native side"))
+    more, notes = check_member(dataclasses.replace(v.member, raw=raw), domain)
+    problems += more
+    if v.member.succeeded and v.member.steady:
+        problems += _balance_problems(v)
+    return problems, notes
+
+
+def _balance_problems(v: LoopView) -> list[tuple[str, str]]:
+    left, right = v.member.raw["left_net_output"], v.member.raw["right_net_output"]
+    if not (math.isfinite(left) and math.isfinite(right)):
+        return []  # the finiteness check reports it
+    residual = v.member.record.residual
+    allowed = v.capacity * residual / v.period + BALANCE_QUADRATURE * max(abs(left), abs(right))
+    gap = abs(left - right)
+    if gap <= allowed:
+        return []
+    return [
+        (
+            "balance",
+            f"net outputs left {left / ml:.6g}, right {right / ml:.6g} ml/s differ by "
+            f"{gap / ml:.3g} ml/s at the steady state, more than the {allowed / ml:.3g} ml/s "
+            f"its cycle change {residual:.3g} allows",
+        )
+    ]
+
+
+def known_reasons(case: Case | LoopCase, problems) -> tuple[str, ...]:
     """Reasons of the known failures covering every problem; () unless all are covered."""
     reasons = []
     for check, _ in problems:
@@ -322,7 +421,7 @@ def known_reasons(case: Case, problems) -> tuple[str, ...]:
     return tuple(dict.fromkeys(reasons))
 
 
-def outcome(case: Case, problems, notes) -> Outcome:
+def outcome(case: Case | LoopCase, problems, notes) -> Outcome:
     problems, notes = tuple(problems), tuple(notes)
     if problems:
         known = known_reasons(case, problems)

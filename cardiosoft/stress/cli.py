@@ -11,9 +11,10 @@ import time
 
 from cardiosoft._cli import add_report_options, command_parser
 from cardiosoft.console import Console
-from cardiosoft.scene import SCENE_NAMES
+from cardiosoft.scene import LOOP_SCENE_NAMES, SCENE_NAMES
 from cardiosoft.solve import ACCURACY_PRESETS
 from cardiosoft.stress.cases import GRID_BPMS, GROUPS, PROPERTY_EXAMPLES, fmt
+from cardiosoft.stress.loop_cases import LOOP_BPMS
 from cardiosoft.stress.report import SuiteReport
 from cardiosoft.stress.suite import plan, run_suite
 
@@ -36,8 +37,9 @@ def parser(prog: str | None = None):
     p.add_argument(
         "--scene",
         action="append",
-        choices=SCENE_NAMES,
-        help="only this scene (repeat for more; default: all)",
+        choices=SCENE_NAMES + LOOP_SCENE_NAMES,
+        help="only this scene (repeat for more; default: all; the closed loops "
+        f"{', '.join(LOOP_SCENE_NAMES)} run in group closed_loop only)",
     )
     p.add_argument(
         "--group",
@@ -55,7 +57,8 @@ def parser(prog: str | None = None):
         "--bpm",
         action="append",
         type=float,
-        help=f"only this rate (repeat for more; default: {', '.join(map(fmt, GRID_BPMS))})",
+        help=f"only this rate (repeat for more; default: {', '.join(map(fmt, GRID_BPMS))}; "
+        f"the closed loops {', '.join(map(fmt, LOOP_BPMS))})",
     )
     p.add_argument(
         "--examples",

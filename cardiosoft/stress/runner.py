@@ -1,5 +1,6 @@
-"""Running the hard cases: each batch through the public batch solve, its first design also
-through the command line (group ``cli``), each member checked (:mod:`cardiosoft.stress.checks`)."""
+"""Running the hard cases: each batch through the public batch solve (a closed loop's through
+:func:`~cardiosoft.loop_batch.solve_loop`), its first design also through the command line
+(group ``cli``), each member checked (:mod:`cardiosoft.stress.checks`)."""
 
 from __future__ import annotations
 
@@ -16,12 +17,23 @@ from pathlib import Path
 import numpy as np
 
 from cardiosoft.batch import solve_beats, solve_static
+from cardiosoft.loop_batch import SIDES, solve_loop
+from cardiosoft.loop_results import loop_member_results
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.results import RunResult, member_results, summary_records
 from cardiosoft.scene import Scene
 from cardiosoft.static import column_stiffness
 from cardiosoft.stress.cases import Batch, Case, member_id
-from cardiosoft.stress.checks import MemberView, Outcome, check_member, outcome
+from cardiosoft.stress.checks import (
+    LoopView,
+    MemberView,
+    Outcome,
+    check_loop_member,
+    check_member,
+    left_half_capacity,
+    outcome,
+)
+from cardiosoft.stress.loop_cases import LoopBatch
 from cardiosoft.units import RHO_WATER, G, mmHg
 
 __all__ = [
@@ -106,7 +118,9 @@ class Runner:
             )
         return self._static[key]
 
-    def run(self, batch: Batch) -> list[Outcome]:
+    def run(self, batch: Batch | LoopBatch) -> list[Outcome]:
+        if isinstance(batch, LoopBatch):
+            return self.run_loop(batch)
         cases = batch.cases()
         try:
             scene = batch.build_scene()
@@ -156,6 +170,33 @@ class Runner:
                 accuracy=scene.accuracy,
             )
             out.append(outcome(case, *check_member(view, self.domain)))
+        return out
+
+    def run_loop(self, batch: LoopBatch) -> list[Outcome]:
+        """A closed loop's batch through :func:`~cardiosoft.loop_batch.solve_loop`, its
+        records (the loop's flags) through :func:`~cardiosoft.loop_results.loop_member_results`."""
+        cases = batch.cases()
+        try:
+            scene = batch.build_scene()
+            members = {k: np.asarray(v) for k, v in batch.members().items()}
+            pump = self.pump if scene.pumps else None
+            sol = solve_loop(scene, members=members, save="metrics", pump=pump)
+            records = loop_member_results(scene, [c.id for c in cases], sol, self.domain)
+        except Exception as err:  # a batch that cannot run fails each of its cases, visibly
+            text = f"{type(err).__name__}: {err}".splitlines()[0][:300]
+            return [outcome(c, [("exception", text)], []) for c in cases]
+        sides = tuple(s for s, (_, ventricle, _, _) in SIDES.items() if ventricle in scene.pumps)
+        out = []
+        for i, case in enumerate(cases):
+            member = MemberView(
+                raw=dict(records[i].metrics),  # loop records keep the metrics as solved
+                record=records[i],
+                succeeded=bool(sol.succeeded[i]),
+                steady=bool(sol.steady[i]),
+                accuracy=scene.accuracy,
+            )
+            view = LoopView(member, sides, 60.0 / case.bpm, left_half_capacity(scene))
+            out.append(outcome(case, *check_loop_member(view, self.domain)))
         return out
 
     def cli(self, batch: Batch) -> list[Outcome]:

@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
-from cardiosoft.scene import SCENE_NAMES, load_scene
+from cardiosoft.scene import LOOP_SCENE_NAMES, SCENE_NAMES, load_scene
 from cardiosoft.solve import ACCURACY_PRESETS
 from cardiosoft.stress.cases import (
     GRID_BPMS,
@@ -27,6 +27,7 @@ from cardiosoft.stress.cases import (
 )
 from cardiosoft.stress.checks import STATUSES, Outcome
 from cardiosoft.stress.draws import property_batches
+from cardiosoft.stress.loop_cases import LOOP_BPMS, LoopBatch, loop_batches, quick_loop_batches
 from cardiosoft.stress.report import SuiteReport
 from cardiosoft.stress.runner import Runner, energy_available
 
@@ -42,20 +43,26 @@ def plan(
     bpms: Sequence[float] | None = None,
     examples: int | None = None,
     seed: int = 14,
-) -> list[Batch]:
+) -> list[Batch | LoopBatch]:
     """The batches of a run, in order. ``quick``: the CI subset (one compile per scene
-    structure, plus the command line's). The other arguments narrow the full suite."""
-    scenes = list(SCENE_NAMES if scenes is None else scenes)
+    structure, plus the command line's). The other arguments narrow the full suite; the
+    closed-loop scenes (:data:`~cardiosoft.scene.LOOP_SCENE_NAMES`) run in group
+    ``closed_loop`` only, at :data:`~cardiosoft.stress.LOOP_BPMS` unless ``bpms`` is given."""
+    every = SCENE_NAMES + LOOP_SCENE_NAMES
+    scenes = list(every if scenes is None else scenes)
     for name in scenes:
-        if name not in SCENE_NAMES:
-            raise ValueError(f"scene = {name!r}: allowed {', '.join(SCENE_NAMES)}")
+        if name not in every:
+            raise ValueError(f"scene = {name!r}: allowed {', '.join(every)}")
     groups = list(GROUPS if groups is None else groups)
     for g in groups:
         if g not in GROUPS:
             raise ValueError(f"group = {g!r}: allowed {', '.join(GROUPS)}")
+    loops = [s for s in scenes if s in LOOP_SCENE_NAMES] if "closed_loop" in groups else []
+    scenes = [s for s in scenes if s in SCENE_NAMES]
     presets = list(ACCURACY_PRESETS if presets is None else presets)
+    loop_bpms = [float(b) for b in (LOOP_BPMS if bpms is None else bpms)]
     bpms = [float(b) for b in (GRID_BPMS if bpms is None else bpms)]
-    out: list[Batch] = []
+    out: list[Batch | LoopBatch] = []
     if quick:
         # One compiled solve per scene structure (the bench, a Windkessel, the static strokes);
         # the command line only for the static scene: each dynamic one compiles its own solve.
@@ -84,7 +91,7 @@ def plan(
             out += property_batches(
                 dynamic_scenes(scenes), n, seed, skip_minimal=True, numbers=False, bpms=QUICK_BPMS
             )
-        return out
+        return out + quick_loop_batches(loops)
     if "grid" in groups:
         out += grid_batches(
             scenes, presets, bpms, cli_at=("default", 60.0) if "cli" in groups else None
@@ -103,10 +110,12 @@ def plan(
         n = PROPERTY_EXAMPLES if examples is None else examples
         out += property_batches(scenes, n, seed, numbers=False)
         out += property_batches(scenes, n, seed)
-    return out
+    return out + loop_batches(loops, loop_bpms)
 
 
-def run_suite(batches: Sequence[Batch], log: Callable[[str], None] = print) -> SuiteReport:
+def run_suite(
+    batches: Sequence[Batch | LoopBatch], log: Callable[[str], None] = print
+) -> SuiteReport:
     """Run ``batches`` (:func:`plan`), one progress line each; returns the report.
 
     The command-line checks run on a second thread beside the batches: each compiles the
@@ -121,6 +130,7 @@ def run_suite(batches: Sequence[Batch], log: Callable[[str], None] = print) -> S
         log(report.notes[-1])
     runner = Runner(energy)
     total = len(batches) + sum(b.cli for b in batches)
+    width = max([8, *(len(b.group) for b in batches)])  # the group column of the progress lines
     done = 0
 
     def record(group: str, title: str, outcomes: list[Outcome], seconds: float):
@@ -132,7 +142,7 @@ def run_suite(batches: Sequence[Batch], log: Callable[[str], None] = print) -> S
         for o in outcomes:
             c[o.status] += 1
         log(
-            f"[{done:>3}/{total}] {group:<8} {title}: {len(outcomes)} cases, "
+            f"[{done:>3}/{total}] {group:<{width}} {title}: {len(outcomes)} cases, "
             + ", ".join(f"{c[s]} {s}" for s in STATUSES if c[s] or s != "known")
             + f" ({seconds:.1f} s)"
         )
