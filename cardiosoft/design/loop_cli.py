@@ -100,6 +100,7 @@ def _write(out_dir: Path, result, plot: bool, console: Console) -> None:
 
 def run_loop_design(scene, args, out_dir: Path | None, console: Console) -> int:
     """The closed-loop design from parsed arguments: returns the exit status."""
+    from cardiosoft.design.cli import conclude
     from cardiosoft.design.loop import optimise_loop
 
     try:
@@ -113,12 +114,9 @@ def run_loop_design(scene, args, out_dir: Path | None, console: Console) -> int:
         result = optimise_loop(scene, **kwargs, progress=console.say)
     except ValueError as err:
         return fail(err)
-    if not args.quiet:
-        print(loop_report(result))
-    for what in result.failures:
-        console.fail("", what)
-    for what in result.flags:
-        console.flag("", what)
-    if out_dir is not None:
-        _write(out_dir, result, not args.no_plot, console)
-    return console.status()
+    return conclude(
+        console,
+        result,
+        None if args.quiet else loop_report(result),
+        None if out_dir is None else lambda: _write(out_dir, result, not args.no_plot, console),
+    )
