@@ -111,7 +111,7 @@ class LoopTarget:
     target: float
     value: float  # at the answer
     weight: float  # user units per unit of residual
-    seen: tuple[float, float]  # the range over every design evaluated
+    seen: tuple[float, float]  # the range over every design evaluated to a steady orbit
 
     @property
     def residual(self) -> float:
@@ -347,7 +347,7 @@ def _limits(ev: _Evaluator, run, found: dict, pump) -> tuple[str, ...]:
         if t.seen[0] <= t.target <= t.seen[1]:
             out.append(
                 f"{_LABELS[name]}: seen on both sides of {t.target:g} {_UNITS[name]} "
-                f"({t.seen[0]:.2f}-{t.seen[1]:.2f} over {n} designs evaluated), but not by a "
+                f"({t.seen[0]:.2f}-{t.seen[1]:.2f} over {n} steady designs), but not by a "
                 "design that also meets the other targets: the answer is the least-squares "
                 "compromise"
             )
@@ -357,8 +357,8 @@ def _limits(ev: _Evaluator, run, found: dict, pump) -> tuple[str, ...]:
         i = int(np.nanargmin(values) if low else np.nanargmax(values))
         design, obs = ev.points[i]
         out.append(
-            f"{_LABELS[name]}: the {'lowest' if low else 'highest'} over {n} designs "
-            f"evaluated is {values[i]:.2f} {_UNITS[name]} ({_design_text(design)}; cardiac "
+            f"{_LABELS[name]}: the {'lowest' if low else 'highest'} over {n} steady designs "
+            f"is {values[i]:.2f} {_UNITS[name]} ({_design_text(design)}; cardiac "
             f"output there {obs['co']:.2f} l/min)"
         )
         side = _ATRIAL.get(name)
