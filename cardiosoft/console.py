@@ -67,6 +67,20 @@ class Console:
         """1 on a failure, or on a flag with ``strict``; else 0."""
         return EXIT_FAILED if self.failures or (self.strict and self.flags) else EXIT_OK
 
+    def conclude(self, result, text: str | None, write=None) -> int:
+        """Print ``text`` (an answer's report), fail ``result.failures``, flag
+        ``result.flags``, ``write()`` the files, and return the exit status: the end of the
+        design commands, open and closed-loop."""
+        if text is not None:
+            print(text)
+        for what in result.failures:
+            self.fail("", what)
+        for what in result.flags:
+            self.flag("", what)
+        if write is not None:
+            write()
+        return self.status()
+
 
 def report_members(console: Console, members, *, steady_asked: bool) -> None:
     """Each member's flags as warnings; a member that is not ok as a failure, unless it only

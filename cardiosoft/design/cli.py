@@ -29,7 +29,7 @@ from cardiosoft.design.problem import (
 from cardiosoft.design.result import DesignResult
 from cardiosoft.design.search import DEFAULT_STEADY, GRID, MAX_ROUNDS, REFINE
 
-__all__ = ["OUTPUT_FILES", "conclude", "main", "parser", "report"]
+__all__ = ["OUTPUT_FILES", "main", "parser", "report"]
 
 OUTPUT_FILES = ("design.json", "design.png")
 
@@ -343,23 +343,8 @@ def main(argv=None, prog: str | None = None) -> int:
         )
     except ValueError as err:  # a problem only the search could see
         return fail(err)
-    return conclude(
-        console,
+    return console.conclude(
         result,
         None if args.quiet else report(result),
         None if out_dir is None else lambda: _write(out_dir, result, plot, console),
     )
-
-
-def conclude(console: Console, result, text: str | None, write) -> int:
-    """Print ``text`` (a design's report), fail its failures, flag its flags, ``write()`` its
-    files, and return the exit status: the end of every design command."""
-    if text is not None:
-        print(text)
-    for what in result.failures:
-        console.fail("", what)
-    for what in result.flags:
-        console.flag("", what)
-    if write is not None:
-        write()
-    return console.status()

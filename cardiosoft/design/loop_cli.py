@@ -100,7 +100,6 @@ def _write(out_dir: Path, result, plot: bool, console: Console) -> None:
 
 def run_loop_design(scene, args, out_dir: Path | None, console: Console) -> int:
     """The closed-loop design from parsed arguments: returns the exit status."""
-    from cardiosoft.design.cli import conclude
     from cardiosoft.design.loop import optimise_loop
 
     try:
@@ -114,8 +113,7 @@ def run_loop_design(scene, args, out_dir: Path | None, console: Console) -> int:
         result = optimise_loop(scene, **kwargs, progress=console.say)
     except ValueError as err:
         return fail(err)
-    return conclude(
-        console,
+    return console.conclude(
         result,
         None if args.quiet else loop_report(result),
         None if out_dir is None else lambda: _write(out_dir, result, not args.no_plot, console),
