@@ -48,6 +48,7 @@ __all__ = [
     "RA_CONGESTION",
     "configure_loop",
     "loop_flags",
+    "pump_sides",
     "run_loop",
 ]
 
@@ -116,7 +117,8 @@ def loop_flags(metrics: dict[str, float], pumps, domain: Domain) -> tuple[str, .
     return tuple(out)
 
 
-def _pump_sides(scene: LoopScene) -> tuple[str, ...]:
+def pump_sides(scene: LoopScene) -> tuple[str, ...]:
+    """The sides (``"left"``, ``"right"``) whose ventricle is a soft pump."""
     return tuple(side for side, (_, ventricle, _, _) in SIDES.items() if ventricle in scene.pumps)
 
 
@@ -145,7 +147,7 @@ def loop_member_results(
                 float(solution.volume_drift[i]),
                 metrics,
                 traces,
-                loop_flags(metrics, _pump_sides(scene), domain),
+                loop_flags(metrics, pump_sides(scene), domain),
             )
         )
     return tuple(out)

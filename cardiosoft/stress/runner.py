@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from cardiosoft.batch import solve_beats, solve_static
-from cardiosoft.loop_batch import SIDES, solve_loop
-from cardiosoft.loop_results import loop_member_results
+from cardiosoft.loop_batch import solve_loop
+from cardiosoft.loop_results import loop_member_results, pump_sides
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.results import RunResult, member_results, summary_records
 from cardiosoft.scene import Scene
@@ -185,7 +185,7 @@ class Runner:
         except Exception as err:  # a batch that cannot run fails each of its cases, visibly
             text = f"{type(err).__name__}: {err}".splitlines()[0][:300]
             return [outcome(c, [("exception", text)], []) for c in cases]
-        sides = tuple(s for s, (_, ventricle, _, _) in SIDES.items() if ventricle in scene.pumps)
+        sides = pump_sides(scene)
         out = []
         for i, case in enumerate(cases):
             member = MemberView(
