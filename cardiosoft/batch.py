@@ -25,6 +25,13 @@ the scene's ``steady_tol`` (or exactly ``beats`` beats), every member at its own
 jitted, ``vmap``-ed call sharded over ``jax.devices()``. Numbers are array leaves: a new design,
 afterload, rate or tolerance does not recompile; a new batch size, effect or save mode does.
 
+**Ensembles.** A ``pump`` whose fitted array leaves carry one leading axis of S draws (a
+posterior, :func:`cardiosoft.pump.load_posterior`; :mod:`cardiosoft.ensemble`), and
+``scene_draws`` (scene numbers per draw, e.g. the bench's calibrated tube), are one more batch
+axis: every draw at every member, in the same one compiled call (draw-major on the flat batch
+axis); the results have shape ``(S, M, ...)``. A draw that fails is reported in ``succeeded``
+and ``message((s, i))`` like any member, never dropped.
+
 **Save modes.** Beats are integrated saving only their end states; the last beat is integrated
 once more from its start, sampled at :data:`SAMPLES_PER_BEAT` times, and its
 :class:`~cardiosoft.metrics.BeatMetrics` computed from the samples. ``save="traces"`` returns
@@ -66,6 +73,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from cardiosoft import ensemble as _ensemble
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
 from cardiosoft.beat_solution import (
@@ -79,6 +87,7 @@ from cardiosoft.beat_solution import (
 from cardiosoft.beat_solution import shard as _shard
 from cardiosoft.beat_solution import solution as _solution
 from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
+from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
 from cardiosoft.loop_batch import solve_loop
 from cardiosoft.loop_scene import LoopScene
 from cardiosoft.metrics import beat_metrics, trapezoid
@@ -96,6 +105,8 @@ __all__ = [
     "BeatSolution",
     "StaticSolution",
     "default_config",
+    "ensemble_axes",
+    "ensemble_size",
     "scene_circuit",
     "solve_beats",
     "solve_orbit",
@@ -129,6 +140,14 @@ SCENE_NUMBERS = (
     "viscoelastic_ratio",
     "relaxation_time",
 )
+
+
+def ensemble_size(pump: PumpSurrogate, scene_draws: dict | None = None) -> int | None:
+    """The number of draws S of an ensemble pump (and ``scene_draws``), or None for a single
+    pump (:func:`cardiosoft.ensemble.ensemble_size`; the scene numbers that may vary between
+    draws are :data:`SCENE_NUMBERS` but the members')."""
+    drawable = tuple(f for f in SCENE_NUMBERS if f not in MEMBER_FIELDS)
+    return _ensemble.ensemble_size(pump, scene_draws, drawable)
 
 
 def scene_circuit(
@@ -254,9 +273,11 @@ def _metrics(circuit: PumpCircuit, ts, ys):
 @eqx.filter_jit
 def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save, steady, energy):
     def one(member):
-        values = {k: v for k, v in member.items() if k not in ("afterload", "start")}
+        values = {k: v for k, v in member.items() if k not in ("afterload", "start", "pump")}
         scene = dataclasses.replace(structure, **(numbers | values))
-        circuit = scene_circuit(scene, pump, member["afterload"], energy=energy)
+        # an ensemble's member carries its own draw of the pump's arrays (pump: the rest)
+        own = pump if "pump" not in member else eqx.combine(member["pump"], pump)
+        circuit = scene_circuit(scene, own, member["afterload"], energy=energy)
         ts = None if save == "state" else _save_times(circuit.actuation)
         observe = None if save == "traces" else (lambda ts, ys: _metrics(circuit, ts, ys)[1])
         common = dict(
@@ -319,6 +340,7 @@ def solve_beats(
     energy: bool = False,
     pump: PumpSurrogate | None = None,
     config: SolverConfig | None = None,
+    scene_draws: dict | None = None,
 ) -> BeatSolution:
     """Simulate a batch of members of ``scene`` to their periodic steady state (module docstring).
 
@@ -343,11 +365,18 @@ def solve_beats(
       metrics then hold ``work_in``, ``work_delivered``, ``work_lost``, ``stored_change``,
       ``energy_residual`` and ``energy_efficiency``. It puts the cable force into the vector
       field: slower, and the added states change the adaptive steps (to within tolerance).
-    - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate`; default the shipped one.
+    - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate`; default the shipped one. An
+      *ensemble* (:func:`cardiosoft.pump.load_posterior`: a leading axis of S draws on some of
+      its array leaves) is one more batch axis (module docstring, "Ensembles").
     - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default :func:`default_config`.
+    - ``scene_draws``: scene numbers that differ between the ensemble's draws, ``{field: (S,)
+      array}`` (SI; fields of :data:`SCENE_NUMBERS` that are not members), e.g. the bench's
+      calibrated tube per draw; with a single pump, an ensemble of the scene's numbers alone.
 
     **Returns:** a :class:`BeatSolution`. Nothing is raised for a member that fails or is not
     steady: see ``succeeded``, ``steady`` and ``message(i)``. Bad input raises ``ValueError``.
+    With an ensemble, every array but ``members`` has the shape ``(S, M, ...)`` (draws, then
+    members), and ``message((s, i))`` speaks of draw s of member i.
     """
     scene = scene if isinstance(scene, Scene | LoopScene) else load_scene(scene)
     if isinstance(scene, LoopScene):
@@ -363,9 +392,15 @@ def solve_beats(
     max_beats, tol = (int(beats), 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
     structure, numbers = split_scene(scene)
     method = "beats" if beats is not None else steady
+    size = ensemble_size(pump, scene_draws)
+    batch, shared = members, pump
+    if size is not None:
+        batch, shared = flat_batch(members, pump, scene_draws or {}, size)
     metrics, traces, out = _solve(
-        structure, numbers, pump, _shard(members), max_beats, tol, config, save, method, energy
+        structure, numbers, shared, _shard(batch), max_beats, tol, config, save, method, energy
     )
+    if size is not None:
+        metrics, traces, out = unflatten((metrics, traces, out), size)
     return _solution(scene, members, config, metrics, traces, out, beats is not None)
 
 
@@ -484,23 +519,36 @@ def solve_static(
     afterload=None,
     pump: PumpSurrogate | None = None,
     n_points: int = 401,
+    scene_draws: dict | None = None,
 ) -> StaticSolution:
     """Quasi-static strokes of a water-column scene's members (no ODE; :mod:`cardiosoft.static`).
 
     The arguments are those of :func:`solve_beats`; the rate plays no part. Any water-column
     scene works, dynamic ones too (the paper's static SV beside the dynamic one). ``n_points``:
-    the pull grid of each stroke (its peak force is the largest of them).
+    the pull grid of each stroke (its peak force is the largest of them). An ensemble (``pump``
+    with draws, ``scene_draws``: of these strokes only ``column_diameter`` and
+    ``cable_friction`` matter) gives arrays of shape ``(S, M)``.
     """
     scene = scene if isinstance(scene, Scene) else load_scene(scene)
     if not scene.afterload.has_heads:
         raise ValueError(f"scene {scene.name}: quasi-static strokes need a water-column afterload")
     members = _members(scene, omega, shortening, None, afterload)
     pump = load() if pump is None else pump
-    area = 0.25 * math.pi * scene.column_diameter**2
-    k = column_stiffness(area, RHO_WATER, G) if scene.has("column_rise") else 0.0
-    friction = scene.cable_friction if scene.has("cable_friction") else 0.0
-    out = static_strokes(
-        pump, members["omega"], members["shortening"], members["afterload"], k, friction, n_points
-    )
-    return StaticSolution(members, *out)
+    size = ensemble_size(pump, scene_draws)
+    draws = scene_draws or {}
+    diameter = draws.get("column_diameter", scene.column_diameter)
+    area = 0.25 * math.pi * jnp.asarray(diameter) ** 2
+    k = column_stiffness(area, RHO_WATER, G) if scene.has("column_rise") else jnp.zeros(())
+    friction = draws.get("cable_friction", scene.cable_friction)
+    friction = jnp.asarray(friction if scene.has("cable_friction") else 0.0)
+    args = (members["omega"], members["shortening"], members["afterload"])
+    if size is None:
+        return StaticSolution(members, *static_strokes(pump, *args, k, friction, n_points))
+
+    def one(p, k, friction):
+        return static_strokes(p, *args, k, friction, n_points)
+
+    k, friction = (jnp.broadcast_to(v, (size,)) for v in (k, friction))
+    axes = ensemble_axes(pump)
+    return StaticSolution(members, *jax.vmap(one, in_axes=(axes, 0, 0))(pump, k, friction))
 
