@@ -48,9 +48,13 @@ def plot_apex_motion(omegas, shortenings, dz_mm, dalpha_deg, path) -> None:
     plt.close(fig)
 
 
-def plot_fig10(result, path) -> None:
+def plot_fig10(result, path, records=None) -> None:
     """Fig. 10-style summary of a run: (a) SV vs afterload, (b) ejected volume vs time,
-    (c) force vs cable displacement, (d) pressure-volume loop."""
+    (c) force vs cable displacement, (d) pressure-volume loop.
+
+    ``records``: the run's summary records (``simulate``); where they hold 95 % predictive
+    bands (``<metric>_band``, ``simulate --uncertainty``), (a) shades the SVs' bands and (c)
+    marks each peak force's band."""
     from cardiosoft.units import ml, mm, mmHg
 
     plt = _pyplot()
@@ -67,10 +71,12 @@ def plot_fig10(result, path) -> None:
                 "o-",
                 label="dynamic (peak column rise)",
             )
+        _shade_bands(ax[0, 0], heads, records)
         ax[0, 0].set_xlabel("afterload [mmHg]")
         ax[0, 0].legend(fontsize=8)
     else:
         ax[0, 0].bar([m.label for m in members], [m.metrics["stroke_volume"] / ml for m in members])
+        _bar_bands(ax[0, 0], [m.label for m in members], records)
     ax[0, 0].set_ylabel("stroke volume [ml]")
     ax[0, 0].set_title("(a) stroke volume", fontsize=10)
     for m in members:
@@ -79,6 +85,7 @@ def plot_fig10(result, path) -> None:
         ax[0, 1].plot(t["time"], (ejected - ejected.min()) / ml, label=m.label)
         ax[1, 0].plot(t["pull"] / mm, t["cable_force"], label=m.label)
         ax[1, 1].plot(t["volume"] / ml, t["pump_pressure"] / mmHg, label=m.label)
+    _force_bands(ax[1, 0], members, records)
     ax[0, 1].set(xlabel="time in the beat [s]", ylabel="ejected volume [ml]")
     ax[0, 1].set_title("(b) ejected volume, last beat", fontsize=10)
     ax[1, 0].set(xlabel="cable displacement [mm]", ylabel="cable force [N]")
@@ -92,6 +99,50 @@ def plot_fig10(result, path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=check_figure_path(path), dpi=110)
     plt.close(fig)
+
+
+BAND_KEYS = (("static_sv_ml", "C0", "static"), ("dynamic_sv_ml", "C1", "dynamic"))
+"""Panel (a)'s shaded bands: record key, colour (as the lines'), label."""
+
+
+def _bands(records, key):
+    """The records' ``<key>_band`` as (low, high) arrays, or None where one is missing."""
+    bands = [r.get(f"{key}_band") for r in records or ()]
+    if not bands or any(b is None or None in b for b in bands):
+        return None
+    return np.array(bands, dtype=float).T
+
+
+def _shade_bands(ax, heads, records) -> None:
+    """Shade the SVs' 95 % predictive bands over the afterloads, where the records hold them."""
+    for key, colour, label in BAND_KEYS:
+        band = _bands(records, key)
+        if band is not None:
+            ax.fill_between(heads, *band, color=colour, alpha=0.2, lw=0,
+                            label=f"{label}: 95 % band")
+
+
+def _bar_bands(ax, labels, records) -> None:
+    """The SV's 95 % predictive band as an error bar on each member's bar."""
+    band = _bands(records, "dynamic_sv_ml")
+    if band is not None:
+        mid = 0.5 * (band[0] + band[1])
+        ax.errorbar(labels, mid, yerr=0.5 * (band[1] - band[0]), fmt="none", color="k",
+                    capsize=4, label="95 % band")
+        ax.legend(fontsize=8)
+
+
+def _force_bands(ax, members, records) -> None:
+    """Mark each member's peak-force band at the pull where its force peaks."""
+    from cardiosoft.units import mm
+
+    for m, r in zip(members, records or (), strict=False):
+        band = r.get("peak_force_N_band")
+        if band is None or None in band:
+            continue
+        k = int(np.argmax(m.traces["cable_force"]))
+        x = m.traces["pull"][k] / mm
+        ax.plot([x, x], band, lw=3, alpha=0.4, solid_capstyle="butt")
 
 
 def plot_closed_loop(result, path, native=None) -> None:

@@ -93,8 +93,11 @@ __all__ = [
     "DEFAULT_ARTIFACT",
     "Chamber",
     "Domain",
+    "PosteriorDraws",
     "PumpSurrogate",
+    "artifact_path",
     "load",
+    "load_posterior",
 ]
 
 DEFAULT_ARTIFACT = "ss950-v3"
@@ -455,11 +458,13 @@ def save(model: PumpSurrogate, path, card: dict) -> None:
 
 def load_card(path=None) -> dict:
     """The JSON model card of the surrogate at ``path`` (default: the shipped one)."""
-    weights = _resolve(path)
+    weights = artifact_path(path)
     return json.loads(weights.with_suffix(".json").read_text())
 
 
-def _resolve(path) -> Path:
+def artifact_path(path=None) -> Path:
+    """The weights file (``.eqx``) of the surrogate at ``path`` (its ``.eqx`` or ``.json``;
+    default: the shipped one)."""
     if path is None:
         return _artifact_dir() / f"{DEFAULT_ARTIFACT}.eqx"
     path = Path(path)
@@ -472,7 +477,7 @@ def load(path=None) -> PumpSurrogate:
     ``path`` names the weights (``.eqx``) or the card (``.json``); the two sit side by side. The
     card's format version and the weights' sha256 are checked; nothing is ever unpickled.
     """
-    weights = _resolve(path)
+    weights = artifact_path(path)
     card_path = weights.with_suffix(".json")
     for p in (weights, card_path):
         if not p.is_file():
@@ -495,3 +500,87 @@ def load(path=None) -> PumpSurrogate:
         lambda a: jnp.asarray(a, dtype=float) if eqx.is_array(a) else a, skeleton
     )
     return eqx.tree_deserialise_leaves(weights, skeleton)
+
+
+POSTERIOR_FORMAT_VERSION = 1
+"""Version of the posterior artifact (``surrogates/<name>-posterior.npz`` + ``.json``)."""
+
+
+class PosteriorDraws(NamedTuple):
+    """The posterior of a fitted surrogate as one ensemble (:func:`load_posterior`).
+
+    - ``pump``: one :class:`PumpSurrogate` whose fitted array leaves carry a leading axis of S
+      draws (the others are the artifact's); ``cardiosoft.solve_beats(..., pump=pump,
+      scene_draws=scene_draws)`` solves all draws in one call.
+    - ``scene_draws``: the rig per draw, ``{scene field: (S,) array}`` in SI: the column's
+      diameter and the cable friction (fitted with the surrogate) and the bench's calibrated
+      tube and shell viscoelasticity (``fit.bench``).
+    - ``scene_centre``: the values those draws are centred on (SI): the model card's rig and the
+      bench scene's calibrated numbers when the posterior was computed.
+    - ``card``: the posterior's JSON card: how it was computed, the sigmas and priors, the
+      model discrepancy per output type, the checks.
+    """
+
+    pump: PumpSurrogate
+    scene_draws: dict
+    scene_centre: dict
+    card: dict
+
+
+def load_posterior(path=None) -> PosteriorDraws:
+    """The posterior draws of the surrogate at ``path`` (default: the shipped one).
+
+    The surrogate's model card names the posterior (its ``posterior`` entry, written by
+    ``python -m fit.posterior``); the draws' sha256 must match the card's and the posterior
+    card's, and the posterior must have been computed for these very weights. Nothing is
+    unpickled (``numpy.load(..., allow_pickle=False)``).
+    """
+    weights = artifact_path(path)
+    card = load_card(weights)
+    entry = card.get("posterior")
+    if entry is None:
+        raise FileNotFoundError(
+            f"{weights.with_suffix('.json')}: no posterior recorded for this surrogate; "
+            "compute one with python -m fit.posterior"
+        )
+    draws_path, card_path = weights.parent / entry["file"], weights.parent / entry["card"]
+    for p in (draws_path, card_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"posterior file {p} not found")
+    posterior = json.loads(card_path.read_text())
+    if posterior.get("format_version") != POSTERIOR_FORMAT_VERSION:
+        raise ValueError(
+            f"{card_path}: format_version {posterior.get('format_version')!r} is not supported "
+            f"(this cardiosoft reads {POSTERIOR_FORMAT_VERSION})"
+        )
+    digest = sha256(draws_path)
+    if not digest == entry["sha256"] == posterior.get("sha256"):
+        raise ValueError(
+            f"{draws_path}: sha256 {digest} does not match the model card's {entry['sha256']} "
+            f"and the posterior card's {posterior.get('sha256')}; the draws were changed"
+        )
+    if posterior.get("weights_sha256") != card["weights_sha256"]:
+        raise ValueError(
+            f"{card_path}: computed for weights {posterior.get('weights_sha256')}, not for "
+            f"{weights} ({card['weights_sha256']}); recompute with python -m fit.posterior"
+        )
+    pump = load(weights)
+    with np.load(draws_path, allow_pickle=False) as f:
+        fields = [k.removeprefix("pump.") for k in f.files if k.startswith("pump.")]
+        arrays = [jnp.asarray(f[f"pump.{k}"], dtype=float) for k in fields]
+        scene = {
+            k.removeprefix("scene."): np.asarray(f[k], float)
+            for k in f.files
+            if k.startswith("scene.")
+        }
+        centre = {
+            k.removeprefix("centre."): float(f[k]) for k in f.files if k.startswith("centre.")
+        }
+    for name, a in zip(fields, arrays, strict=True):
+        single = jnp.shape(getattr(pump, name))
+        if a.ndim != len(single) + 1 or a.shape[1:] != single:
+            raise ValueError(
+                f"{draws_path}: pump.{name} has shape {a.shape}, not (draws, *{single})"
+            )
+    pump = eqx.tree_at(lambda m: [getattr(m, k) for k in fields], pump, arrays)
+    return PosteriorDraws(pump, scene, centre, posterior)

@@ -12,6 +12,9 @@ fitted range, is a ``warning:`` line and is listed under ``flags`` in ``summary.
 a member's solve failed or it did not reach the steady state (without ``--beats``; with
 ``--beats N`` a member still in a transient is a flag), or with ``--strict`` when anything is
 flagged; 2 for bad input (one line, nothing written).
+``--uncertainty`` also solves the surrogate's posterior draws (:mod:`cardiosoft.posterior`) in
+one batched call and prints each metric's 95 % predictive band; a draw that fails is counted
+and flagged, never dropped silently.
 The numerics live in :func:`cardiosoft.experiment.run`; this module only parses and prints.
 """
 
@@ -24,6 +27,9 @@ import time
 from pathlib import Path
 
 OUTPUT_FILES = ("summary.json", "traces.csv", "figure.png")
+UNCERTAINTY_DRAWS = 64
+"""Posterior draws ``--uncertainty`` solves by default: the ensemble's cost grows with them
+(every draw at every afterload, the batch running to its slowest member)."""
 
 
 def parser(prog: str | None = None):
@@ -94,6 +100,21 @@ def parser(prog: str | None = None):
         action="store_true",
         help="rerun at the reference preset and print each metric's difference, the run's "
         "numerical error estimate (calculation verification); recorded in summary.json",
+    )
+    p.add_argument(
+        "--uncertainty",
+        action="store_true",
+        help="also solve the surrogate's posterior draws (cardiosoft.pump.load_posterior) in "
+        "one batched call and print each metric's 95 %% predictive band (draws plus model "
+        "discrepancy); summary.json gets <metric>_band: [low, high], the figure the bands",
+    )
+    p.add_argument(
+        "--draws",
+        type=int,
+        default=UNCERTAINTY_DRAWS,
+        metavar="N",
+        help=f"with --uncertainty: solve the posterior's first N draws (default "
+        f"{UNCERTAINTY_DRAWS}; the artifact holds 256)",
     )
     add_output_options(p, "summary.json, traces.csv, figure.png", plot="the figure")
     add_report_options(p)
@@ -244,8 +265,10 @@ def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> li
         if plot:
             from cardiosoft.plots import plot_closed_loop, plot_fig10
 
-            draw = plot_closed_loop if _is_loop(result.scene) else plot_fig10
-            draw(result, staging / "figure.png")
+            if _is_loop(result.scene):
+                plot_closed_loop(result, staging / "figure.png")
+            else:
+                plot_fig10(result, staging / "figure.png", records=records)
     return [out_dir / name for name in written]
 
 
@@ -274,6 +297,12 @@ def _configure(args, out_dir):
         raise ValueError(f"--compare-paper: scene {scene.name} is not the paper's bench")
     if args.verify and loop:
         raise ValueError(f"--verify: not available for a closed-loop scene ({scene.name}) yet")
+    if args.uncertainty and (loop or scene.static):
+        kind = "a closed loop" if loop else "static"
+        raise ValueError(
+            f"--uncertainty: scene {scene.name} is {kind}; the posterior's ensemble runs on the "
+            "dynamic pump scenes (bench-dynamic, lv-systemic, rv-pulmonary or your own)"
+        )
     return scene
 
 
@@ -281,6 +310,72 @@ def _print_table(result, records, compare_paper: bool) -> None:
     paper = _paper_values() if compare_paper else None
     print(_heading(result.scene) + ("   (paper: 30 bpm)" if paper is not None else ""))
     print(_table(records, result.scene, paper))
+
+
+def _band_table(records, scene) -> str:
+    """Each metric as its best estimate and 95 % predictive band ``[low, high]``."""
+    from cardiosoft._cli import fmt, table
+
+    columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
+    columns = [
+        c for c in columns if c[2] in ("afterload_mmHg", "label") or f"{c[2]}_band" in records[0]
+    ]
+    rows = []
+    for r in records:
+        row = []
+        for _, _, key, spec in columns:
+            band = r.get(f"{key}_band")
+            cell = fmt(r.get(key), spec)
+            if band is not None:
+                cell += f" [{fmt(band[0], spec)}, {fmt(band[1], spec)}]"
+            row.append(cell)
+        rows.append(row)
+    return table([c[0] for c in columns], [c[1] for c in columns], rows)
+
+
+def _uncertainty(args, scene, records, console, posterior) -> dict:
+    """Solve the posterior's draws, add ``<metric>_band`` (and ``<metric>_band_parameters``,
+    the draws alone) to each record, flag failed draws; returns summary.json's
+    ``uncertainty`` entry."""
+    from cardiosoft.posterior import BAND, ensemble_run, predictive_bands
+
+    console.say(
+        f"uncertainty: {len(next(iter(posterior.scene_draws.values())))} posterior draws x "
+        f"{len(records)} member(s) in one batched solve ..."
+    )
+    start = time.perf_counter()
+    ens = ensemble_run(scene, posterior, beats=args.beats, steady=args.steady)
+    bands = predictive_bands(ens, posterior.card)
+    failed = []
+    for record, member_bands, message in zip(records, bands, ens.messages, strict=True):
+        for key, band in member_bands.items():
+            record[f"{key}_band"] = _finite([band.low, band.high])
+            record[f"{key}_band_parameters"] = _finite([band.parameter_low, band.parameter_high])
+        n_failed = next(iter(member_bands.values())).failed
+        record["band_failed_draws"] = n_failed
+        failed.append(n_failed)
+        if n_failed:
+            console.flag(
+                record["label"],
+                f"{n_failed} of {ens.ok.shape[0]} posterior draws failed or missed the steady "
+                f"state and are left out of its bands (the first: {message})",
+            )
+    console.say(f"done in {time.perf_counter() - start:.1f} s")
+    return {
+        "band": BAND,
+        "draws": int(ens.ok.shape[0]),
+        "failed_draws": failed,
+        "posterior": posterior.card["file"],
+        "posterior_sha256": posterior.card["sha256"],
+        "discrepancy": "sd^2 = s0^2 + s1^2 (1 - exp(-d^2)) per output type, "
+        "posterior card 'discrepancy'",
+    }
+
+
+def _finite(values):
+    import math
+
+    return [v if math.isfinite(v) else None for v in values]
 
 
 def main(argv=None, prog: str | None = None) -> int:
@@ -295,8 +390,14 @@ def main(argv=None, prog: str | None = None) -> int:
 
     console = Console(quiet=args.quiet, strict=args.strict)
     out_dir = Path(args.out) if args.out else None
+    posterior = None
     try:
         scene = _configure(args, out_dir)
+        if args.uncertainty:
+            from cardiosoft.posterior import first_draws
+            from cardiosoft.pump import load_posterior
+
+            posterior = first_draws(load_posterior(), args.draws)
         what = (
             "quasi-static pull, one root find per cable position"
             if scene.static
@@ -317,10 +418,21 @@ def main(argv=None, prog: str | None = None) -> int:
     run_seconds = time.perf_counter() - start
     console.say(f"done in {run_seconds:.1f} s")
     records = summary_records(result)
+    uncertainty = None
+    if posterior is not None:
+        uncertainty = _uncertainty(args, scene, records, console, posterior)
     if not args.quiet:
         _print_table(result, records, args.compare_paper)
+        if uncertainty is not None:
+            print(
+                f"95 % predictive bands ({uncertainty['draws']} posterior draws plus the model "
+                "discrepancy; --out: summary.json has the draws' own bands too)"
+            )
+            print(_band_table(records, result.scene))
     report_members(console, result.members, steady_asked=args.beats is None)
     extra = console.record()
+    if uncertainty is not None:
+        extra["uncertainty"] = uncertainty
     if args.verify:
         from cardiosoft.verify import verify_run
 

@@ -192,3 +192,20 @@ def fit(data: datasets.PaperData, progress=print):
 def save_artifact(model: PumpSurrogate, path, card: dict) -> None:
     """Write the weights and the card (``cardiosoft.pump.save``)."""
     save(model, path, card)
+
+
+def record_posterior(weights, entry: dict) -> None:
+    """Record the posterior's draws in the surrogate's card: ``entry`` is ``{"file": the
+    .npz's name, "card": its JSON card's name, "sha256": the .npz's}``, beside ``weights``
+    (``cardiosoft.pump.load_posterior`` checks them). The weights and their sha256 are left
+    as they are; a refit writes a new card without it (the draws belong to the old weights)."""
+    import json
+    from pathlib import Path
+
+    from cardiosoft.files import atomic_path
+
+    card_path = Path(weights).with_suffix(".json")
+    card = json.loads(card_path.read_text())
+    card["posterior"] = dict(entry)
+    with atomic_path(card_path) as tmp:
+        tmp.write_text(json.dumps(card, indent=2) + "\n")

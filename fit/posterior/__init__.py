@@ -1,0 +1,18 @@
+"""A posterior of what the paper's data leave uncertain in the fitted surrogate and its rig
+(issue #24; DESIGN.md section 3.6).
+
+    python -m fit.posterior            # Laplace posterior -> surrogates/<name>-posterior.npz/.json
+    python -m fit.posterior --nuts     # NUTS on the EF block against it (--blocks)
+    python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
+
+- :mod:`fit.posterior.blocks`: the parameters (the fit's raw coordinates) and each block's
+  whitened residuals, sigmas and priors;
+- :mod:`fit.posterior.laplace`: the discrepancy's size from leave-one-out residuals and the cut
+  posterior's Gauss-Newton Laplace approximation;
+- :mod:`fit.posterior.artifact`: computing it from the shipped fit and writing the draws;
+- :mod:`fit.posterior.nuts`: the NUTS check (NumPyro, forward mode; ArviZ diagnostics);
+- :mod:`fit.posterior.check`: the held-out checks.
+
+The draws are carried through the solve by :func:`cardiosoft.pump.load_posterior` and
+:mod:`cardiosoft.posterior`.
+"""

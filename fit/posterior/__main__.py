@@ -1,0 +1,240 @@
+"""Compute, check or test the posterior of the shipped surrogate (fit.posterior).
+
+    python -m fit.posterior            # compute and write surrogates/<name>-posterior.{npz,json}
+    python -m fit.posterior --nuts     # NUTS on the EF block against the Laplace (--blocks)
+    python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
+
+Run from the repository root after ``python -m fit`` and ``python -m fit.bench`` (the bench
+scene's calibrated numbers are the bench block's centre). An existing posterior is not
+overwritten without --force; --nuts records its result in the posterior's card.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+
+def _print_parameters(pcard: dict) -> None:
+    print("parameter                          block       centre       sd   (softplus(raw) where "
+          "marked +, else raw)")
+    for name, p in pcard["parameters"].items():
+        mark = "+" if p["coordinate"] != "raw" else " "
+        print(f"{mark} {name:32s} {p['block']:9s} {p['centre']:10.4g} {p['sd']:8.3g}")
+
+
+def _print_discrepancy(pcard: dict) -> None:
+    d = pcard["discrepancy"]
+    print("model discrepancy (s0 from leave-one-out; s1 far from the calibrated conditions):")
+    print(
+        f"  EF volume: s0 {d['ef_volume']['s0'] * 1e6:.2f} ml (Table I leave-one-out mean "
+        f"|error| {pcard['table1_loo_mae_ml']['linearised']:.2f} ml linearised, "
+        f"{pcard['table1_loo_mae_ml']['refitted_by_the_fit']} ml refitted by the fit)"
+    )
+    for kind, unit, scale in (
+        ("static_sv", "ml", 1e6), ("dynamic_sv", "ml", 1e6), ("force", "N", 1.0),
+        ("work", "J", 1.0),
+    ):
+        loo = ", ".join(f"{x * scale:+.2f}" for x in d[kind]["loo"])
+        print(
+            f"  {kind:10s}: s0 {d[kind]['s0'] * scale:.3g} {unit}, s1 {d[kind]['s1'] * scale:.3g} "
+            f"{unit}; leave-one-out errors [{unit}] {loo}"
+        )
+
+
+def _record(card_path, key: str, value) -> None:
+    """Write ``value`` under ``key`` into the posterior card at ``card_path`` (whole or not at
+    all). The card is not hashed: the draws' .npz is."""
+    from cardiosoft.files import atomic_path
+
+    pcard = json.loads(card_path.read_text()) | {key: value}
+    with atomic_path(card_path) as tmp:
+        tmp.write_text(json.dumps(pcard, indent=2) + "\n")
+
+
+def _nuts(args) -> int:
+    import jax.numpy as jnp
+
+    from cardiosoft import datasets
+    from cardiosoft.pump import artifact_path, load, load_card, load_posterior
+    from cardiosoft.scene import load_scene
+    from fit import fitting
+    from fit.posterior import artifact, blocks, laplace, nuts
+
+    post = load_posterior(args.artifact)
+    weights = artifact_path(args.artifact)
+    npz, js = artifact.posterior_paths(weights)
+    with np.load(npz, allow_pickle=False) as f:
+        centre, natural_centre, transform = f["centre"], f["natural_centre"], f["transform"]
+    model, card = load(args.artifact), load_card(args.artifact)
+    layout = blocks.Layout(model, fitting.rig_from_card(card), load_scene(artifact.SCENE))
+    if not np.allclose(layout.centre, centre, rtol=0, atol=1e-12):
+        raise ValueError(f"{npz}: centred elsewhere than the current fit and scene; recompute")
+    d = blocks.training_data(datasets.load_paper_data())
+    dis = post.card["discrepancy"]
+    s0 = blocks.Sigmas(
+        dis["ef_volume"]["s0"] / float(model.unloaded_volume),
+        *(dis[k]["s0"] for k in ("static_sv", "dynamic_sv", "force", "work")),
+    )
+    residuals = {
+        "ef": blocks.ef_residuals(layout, d, s0),
+        laplace.JOINT: blocks.joint_residuals(layout, d, s0, load_scene(artifact.SCENE)),
+    }
+    spans = dict(zip(("ef", laplace.JOINT), laplace._spans(layout), strict=True))
+    record = {}
+    for block in args.blocks:
+        cols = spans[block]
+        chol = transform[cols, cols]
+        natural_cov = chol @ chol.T  # given the earlier blocks at their centre
+        slope = layout.natural_slope(centre)[cols]
+        cov = natural_cov / np.outer(slope, slope)  # the same, linearised in raw coordinates
+        positive = layout.positive[cols]
+
+        def to_natural(a, positive=positive):
+            return np.where(positive, np.logaddexp(0.0, a), a)
+
+        full = residuals[block]
+
+        def residual(x, cols=cols, full=full):
+            return full(jnp.asarray(centre).at[cols].set(x))
+
+        print(f"NUTS on the {block} block ({cols.stop - cols.start} parameters, "
+              f"{args.chains} chains x ({args.warmup} warmup + {args.samples})):", flush=True)
+        check = nuts.run(
+            residual, centre[cols], cov, layout.names[cols], chains=args.chains,
+            warmup=args.warmup, samples=args.samples, seed=args.seed,
+            progress=lambda m: print(m, flush=True),
+            compare=(to_natural, natural_centre[cols], np.sqrt(np.diag(natural_cov))),
+        )
+        print(f"  {'parameter':32s} {'Laplace sd':>10s} {'NUTS sd':>9s} {'ratio':>6s} "
+              f"{'shift':>6s} {'R-hat':>6s} {'ESS bulk':>8s} {'tail':>6s}")
+        for i, n in enumerate(check.names):
+            print(
+                f"  {n:32s} {check.laplace_sd[i]:10.4g} {check.nuts_sd[i]:9.4g} "
+                f"{check.laplace_sd[i] / check.nuts_sd[i]:6.2f} {check.nuts_mean_shift[i]:+6.2f} "
+                f"{check.rhat[i]:6.3f} {check.ess_bulk[i]:8.0f} {check.ess_tail[i]:6.0f}"
+            )
+        print(f"  divergences {check.divergences}; {check.seconds:.0f} s; "
+              f"{'PASSED' if check.passed else 'NOT PASSED'} ({check.record()['criteria']})")
+        record[block] = check.record()
+    if args.bench_cost:
+        cols = spans[laplace.JOINT]
+        u = nuts.potential(lambda x: residuals[laplace.JOINT](jnp.asarray(centre).at[cols].set(x)))
+        seconds = nuts.gradient_cost(u, jnp.asarray(centre[cols]))
+        # about 10 gradients per NUTS step at this metric (measured on the EF block)
+        estimate = seconds * 10 * (args.warmup + args.samples) * args.chains / 60
+        print(f"{laplace.JOINT} block: one gradient {seconds:.2f} s; NUTS at these settings "
+              f"would take about {estimate:.0f} min: not run")
+        record[laplace.JOINT] = {"gradient_seconds": seconds, "estimated_minutes": estimate,
+                                 "run": False}
+    _record(js, "nuts", {**json.loads(js.read_text()).get("nuts", {}), **record})
+    print(f"recorded in {js}")
+    return 0 if all(r.get("passed", True) for r in record.values()) else 1
+
+
+def _check(args) -> int:
+    from cardiosoft import datasets
+    from cardiosoft.pump import artifact_path, load_card, load_posterior
+    from fit.posterior import artifact, check
+
+    post = load_posterior(args.artifact)
+    data = datasets.load_paper_data()
+    t2 = check.table2(post, data, seed=args.seed)
+    fem = load_card(args.artifact)["metrics"]["table2_paper_fem_mae_ml"]
+    print(check.format_coverage(
+        "Table II (held out): contracted volume V_u (1 - EF) [ml] against the 95 % predictive "
+        "band (draws, EF discrepancy, measurement sd)", "ml", t2,
+        f" (the paper's FEM misses these by {fem:.2f} ml on average)",
+    ))
+    print()
+    b = check.bench(post, data, seed=args.seed)
+    print(check.format_coverage(
+        "30-bpm bench: dynamic SV [ml] (fitted) against the 95 % band (draws, discrepancy, "
+        "the paper's sd)", "ml", b.dynamic_sv))
+    print(check.format_coverage(
+        "30-bpm bench: peak force [N] (not fitted) against the 95 % band", "N", b.peak_force))
+    print(f"  draws that failed or missed the steady state: {b.failed}")
+    print()
+    fit = artifact.linearised_fit(args.artifact, progress=lambda m: print(m, file=sys.stderr))
+    loao = check.leave_one_afterload_out(
+        fit, seed=args.seed, progress=lambda m: print(m, file=sys.stderr, flush=True)
+    )
+    print(check.format_coverage(
+        "leave one afterload out: the left-out dynamic SV [ml] against the band of the "
+        "posterior without its four rows", "ml", loao.dynamic_sv))
+    print(check.format_coverage(
+        "leave one afterload out: the left-out peak force [N]", "N", loao.peak_force))
+    print(f"  draws that failed or missed the steady state: {loao.failed}")
+    _, js = artifact.posterior_paths(artifact_path(args.artifact))
+    _record(js, "checks", {
+        "seed": args.seed,
+        "table2": t2.summary(),
+        "bench_dynamic_sv": b.dynamic_sv.summary(),
+        "bench_peak_force": b.peak_force.summary(),
+        "bench_failed_draws": b.failed,
+        "leave_one_afterload_out_dynamic_sv": loao.dynamic_sv.summary(),
+        "leave_one_afterload_out_peak_force": loao.peak_force.summary(),
+        "leave_one_afterload_out_failed_draws": loao.failed,
+    })
+    print(f"recorded in {js}")
+    return 0
+
+
+def main(argv=None) -> int:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from cardiosoft.files import refuse_overwrite
+    from cardiosoft.pump import artifact_path
+    from fit.posterior import artifact
+
+    parser = argparse.ArgumentParser(
+        prog="python -m fit.posterior", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("--artifact", metavar="PATH", help="surrogate (default: the shipped one)")
+    parser.add_argument("--draws", type=int, default=artifact.DRAWS, help="number of draws")
+    parser.add_argument("--seed", type=int, default=artifact.SEED, help="seed of the draws")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing posterior")
+    parser.add_argument("--nuts", action="store_true", help="NUTS check of the Laplace")
+    parser.add_argument("--blocks", nargs="+", default=["ef"],
+                        choices=["ef", "mechanics+bench"],
+                        help="blocks for --nuts (the second solves the bench in every gradient)")
+    parser.add_argument("--chains", type=int, default=4)
+    parser.add_argument("--warmup", type=int, default=300)
+    parser.add_argument("--samples", type=int, default=500)
+    parser.add_argument("--bench-cost", action="store_true",
+                        help="with --nuts: time the mechanics+bench block's gradient and "
+                        "estimate its NUTS run")
+    parser.add_argument("--check", action="store_true", help="held-out checks of the bands")
+    args = parser.parse_args(argv)
+    try:
+        if args.nuts:
+            return _nuts(args)
+        if args.check:
+            return _check(args)
+        if args.draws < 2:
+            raise ValueError(f"--draws {args.draws}: at least 2")
+        npz, _ = artifact.posterior_paths(artifact_path(args.artifact))
+        refuse_overwrite(npz, args.force)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    start = time.perf_counter()
+    arrays, pcard, _, _ = artifact.compute(
+        args.artifact, n_draws=args.draws, seed=args.seed,
+        progress=lambda m: print(m, file=sys.stderr, flush=True),
+    )
+    pcard["seconds"] = round(time.perf_counter() - start, 1)
+    npz, js = artifact.write(args.artifact, arrays, pcard)
+    _print_parameters(pcard)
+    _print_discrepancy(pcard)
+    print(f"wrote {npz} and {js} in {pcard['seconds']} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

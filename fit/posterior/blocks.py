@@ -1,0 +1,441 @@
+"""The posterior's three blocks as whitened residual vectors: data over their stated sigmas, and
+priors, so that ``1/2 |r(theta)|^2`` is the negative log posterior of each block.
+
+The parameters are one flat vector ``theta`` in the fit's own raw coordinates (log, logit,
+softplus-inverse), in three blocks:
+
+- ``ef``: the EF_0 law of stage 1 (``pipeline.EF_FIELDS``, 7 numbers), on Table I;
+- ``mechanics``: stage 2, the surrogate's ``pipeline.MECHANICS_FIELDS`` and the rig's
+  ``pipeline.RIG_FIELDS``, and the two the fit holds (``pipeline.HELD``: the fold compliance
+  kappa and the column's diameter), 10 in all, on the Fig. 10 bench (quasi-static) and the
+  FEM comparisons. The held two get a prior and are sampled: the data leave them nearly free,
+  and their spread is what a prediction must show;
+- ``bench``: the bench calibration of ``fit.bench`` (the logs of the tube's length and diameter
+  in m, the shell's viscoelastic stiffness ratio and relaxation time in s), on the dynamic SVs
+  and mechanical work at 30 bpm, solved through diffrax.
+
+Each block is conditional on the blocks before it (the fit is sequential: stage 2 holds stage 1,
+the bench calibration holds the surrogate): ``r_ef(theta_ef)``, ``r_mech(theta_ef, theta_mech)``,
+``r_bench(theta_ef, theta_mech, theta_bench)``. :mod:`fit.posterior.laplace` combines them as a
+cut posterior (no feedback from a later block's data onto an earlier block's parameters).
+
+**Sigmas** (stated in the posterior's card, ``STATED``):
+
+- Table I (FEM, printed to 0.1 % EF): the rounding, 0.1 % / sqrt(12), plus the EF discrepancy
+  s0 (the surrogate's leave-one-out error on Table I). The fit's soft-L1 residuals are kept: the
+  whole stage-1 residual vector (cells, the longitudinal anchor, the ridge) is multiplied by
+  ``EF_SCALE / sigma_ef``, so the posterior is the fit's loss at one temperature and its mode is
+  the fit's optimum; the ridge becomes a normal prior of sd ``sigma_ef / REGULARISATION`` (about
+  5) on each raw EF parameter, the anchor a 10 % sd scaled likewise.
+- static SV and peak force: the paper's SDs (Sec. III-D) and the static SV's and force's
+  discrepancy s0 in quadrature; mechanical work M = P_a SV_dyn / e: the dynamic SV's relative
+  SD and the efficiency's rounding (0.0005) in quadrature, plus the work discrepancy;
+- dynamic SV: the paper's SDs plus the dynamic SV's discrepancy;
+- the FEM comparisons (efficiencies 0.02, ratios 10 %) and the convexity constraint: the
+  fit's own scales, each stated in ``fit.pipeline`` as the surrogate's form error against a
+  computed reference (no measurement there).
+
+**Priors** (``PRIORS``): broad normal priors on the raw parameters of stages 2 and the bench,
+each written as one more residual ``(theta - mu) / s``; the EF block's prior is the fit's ridge.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.flatten_util import ravel_pytree
+
+from cardiosoft.units import mm, mmHg
+from fit import pipeline
+
+BLOCKS = ("ef", "mechanics", "bench")
+MECHANICS = (*pipeline.MECHANICS_FIELDS, "fold_compliance")
+"""The surrogate's parameters in the mechanics block: the fitted ones and the held kappa."""
+RIG = ("log_column_diameter", *pipeline.RIG_FIELDS)
+"""The rig's parameters in the mechanics block: the held column diameter and the fitted ones."""
+BENCH_NAMES = (
+    "bench.log_tube_length",
+    "bench.log_tube_diameter",
+    "bench.log_stiffness_ratio",
+    "bench.log_relaxation_time",
+)
+"""The bench calibration's four, as logs of SI values (``fit.bench.NAMES`` in m, -, s)."""
+BENCH_SCENE_FIELDS = ("tube_length", "tube_diameter", "viscoelastic_ratio", "relaxation_time")
+FEM_ROUNDING = 0.001 / np.sqrt(12.0)
+"""Table I prints EF to 0.1 %: a uniform rounding error of sd 0.1 % / sqrt(12) (fraction)."""
+EFFICIENCY_ROUNDING = 0.0005
+"""The paper prints the efficiencies to three decimals (Sec. III-D)."""
+BENCH_RTOL, BENCH_ATOL = 1e-7, 1e-12  # fit.bench's solver tolerances, so that its optimum holds
+
+
+def _softplus_inverse(y: float) -> float:
+    return float(np.log(np.expm1(y)))
+
+
+PRIORS: dict[str, tuple[float, float, str]] = {
+    "log_stiffness[0]": (
+        float(np.log(5e3)), float(np.log(10.0)),
+        "log K [N/m]: an order of magnitude about a zero-pressure force peaking near 50 N",
+    ),
+    "log_stiffness[1]": (0.0, 1.0, "slope of log K in (Omega - 4)/4: K within e-fold per unit"),
+    "softening_exponent": (0.0, 3.0, "softplus-inverse of g - 0.5: g from 0.5 to ~4"),
+    "log_chamber_elastance": (
+        float(np.log(7.0 * mmHg / 1e-6)), float(np.log(10.0)),
+        "log E_u [Pa/m^3]: an order of magnitude about 7 mmHg/ml (the shell's inflation)",
+    ),
+    "fold_compliance": (
+        _softplus_inverse(1.0), 2.0,
+        "softplus-inverse of kappa (the folded chamber's elastance E_u exp(-kappa EF_0)): "
+        "kappa from ~0 to ~3, held at 0.81 by the fit",
+    ),
+    "log_stiffening": (
+        float(np.log(1 / 10e-6)), float(np.log(10.0)),
+        "log beta [1/m^3]: stiffening over 1-100 ml",
+    ),
+    "swelling_resistance": (0.0, 3.0, "softplus-inverse of k: k from ~0 to ~3"),
+    "log_column_diameter": (
+        float(np.log(45 * mm)), float(np.log(2.0)),
+        "log of the column's bore [m]: a laboratory tube of 20-90 mm, held at 43.4 mm by the fit",
+    ),
+    "raw_cable_friction": (
+        _softplus_inverse(0.5), 1.5,
+        "softplus-inverse of mu theta: cables over the base holes' edges, mu 0.1-0.5, theta ~pi/2",
+    ),
+    "log_fem_pressure": (
+        float(np.log(60 * mmHg)), float(np.log(2.0)),
+        "log of the FEM efficiencies' pressure [Pa]: physiological, 30-120 mmHg",
+    ),
+    "bench.log_tube_length": (
+        float(np.log(0.3)), float(np.log(3.0)), "silicone tube from pump to column: 0.1-0.9 m"
+    ),
+    "bench.log_tube_diameter": (
+        float(np.log(19e-3)), float(np.log(1.5)), "its bore: 13-29 mm, the pump base's outlet"
+    ),
+    "bench.log_stiffness_ratio": (
+        float(np.log(0.2)), float(np.log(3.0)), "silicone's rate stiffening: 7-60 %"
+    ),
+    "bench.log_relaxation_time": (
+        float(np.log(1.0)), float(np.log(5.0)), "its relaxation time: 0.2-5 s"
+    ),
+}
+"""Normal priors (mean, sd, why) on the raw parameters of the mechanics and bench blocks."""
+
+
+POSITIVE = (
+    "ef_linear",
+    "fold_depth",
+    "three_fold_depth",
+    "softening_exponent",
+    "fold_compliance",
+    "swelling_resistance",
+    "raw_cable_friction",
+)
+"""Raw parameters that are softplus-inverses of one positive coefficient each (the EF law's
+rates and depths, g - 1/2, kappa, k, mu theta). Near zero their raw coordinate is flat (the
+softplus saturates), far from Gaussian; the Laplace approximation is taken in the coefficient
+itself, truncated at zero (:mod:`fit.posterior.laplace`)."""
+
+
+class Sigmas(NamedTuple):
+    """The discrepancy scales s0 per output type (SI: EF as a fraction, m^3, N, J). The static
+    SV (a slow pull, the surrogate alone) and the dynamic SV (the column's rise at 30 bpm, the
+    bench's calibrated tube and viscoelasticity too) are two types: the model reaches them by
+    different mechanisms."""
+
+    ef: float
+    static_sv: float
+    dynamic_sv: float
+    force: float
+    work: float
+
+
+def _names(module, fields, prefix=""):
+    import dataclasses
+
+    out = []
+    for f in (d.name for d in dataclasses.fields(module) if d.name in fields):
+        n = int(np.size(getattr(module, f)))
+        out += [f"{prefix}{f}"] if n == 1 else [f"{prefix}{f}[{i}]" for i in range(n)]
+    return out
+
+
+class Layout:
+    """The flat parameter vector: names, blocks, centre (the fit's optimum) and how to rebuild
+    the surrogate, the rig and the bench's four from it."""
+
+    def __init__(self, model, rig, bench_scene):
+        ef, self._ef_static = pipeline._split(model, pipeline.EF_FIELDS)
+        mech, _ = pipeline._split(model, MECHANICS)
+        self._mech_static = pipeline._split(model, MECHANICS)[1]
+        rig_params, self._rig_static = pipeline._split(rig, RIG)
+        self.fitted_model, self.fitted_rig = model, rig
+        flat_ef, self._unravel_ef = ravel_pytree(ef)
+        flat_mech, self._unravel_mech = ravel_pytree((mech, rig_params))
+        bench = np.log(np.array([float(getattr(bench_scene, f)) for f in BENCH_SCENE_FIELDS]))
+        self.centre = np.concatenate([np.asarray(flat_ef), np.asarray(flat_mech), bench])
+        n_ef, n_mech = flat_ef.size, flat_mech.size
+        self.blocks = {
+            "ef": slice(0, n_ef),
+            "mechanics": slice(n_ef, n_ef + n_mech),
+            "bench": slice(n_ef + n_mech, n_ef + n_mech + 4),
+        }
+        self.names = tuple(
+            _names(model, pipeline.EF_FIELDS)
+            + _names(model, MECHANICS)
+            + _names(rig, RIG)
+            + list(BENCH_NAMES)
+        )
+
+    @property
+    def positive(self) -> np.ndarray:
+        """Which parameters are softplus-inverses of positive coefficients (:data:`POSITIVE`)."""
+        return np.array([n.split("[")[0] in POSITIVE for n in self.names])
+
+    def natural(self, theta):
+        """The Laplace's coordinates: ``softplus(theta)`` where :attr:`positive`, else theta."""
+        theta = np.asarray(theta, float)
+        return np.where(self.positive, np.logaddexp(0.0, theta), theta)
+
+    def raw(self, natural):
+        """The inverse of :meth:`natural` (its positive coordinates must be > 0)."""
+        natural = np.asarray(natural, float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inverse = natural + np.log(-np.expm1(-natural))
+        return np.where(self.positive, inverse, natural)
+
+    def natural_slope(self, theta):
+        """d natural / d theta: ``sigmoid(theta)`` where :attr:`positive`, else 1."""
+        theta = np.asarray(theta, float)
+        return np.where(self.positive, 1.0 / (1.0 + np.exp(-theta)), 1.0)
+
+    def pump(self, theta):
+        """The surrogate whose EF and mechanics parameters are ``theta``'s."""
+        ef = self._unravel_ef(theta[self.blocks["ef"]])
+        mech, _ = self._unravel_mech(theta[self.blocks["mechanics"]])
+        model = eqx.combine(ef, self._ef_static)
+        fields = MECHANICS
+        return eqx.tree_at(
+            lambda m: [getattr(m, f) for f in fields], model, [getattr(mech, f) for f in fields]
+        )
+
+    def rig(self, theta) -> pipeline.Rig:
+        _, rig = self._unravel_mech(theta[self.blocks["mechanics"]])
+        return eqx.combine(rig, self._rig_static)
+
+    def prior_rows(self, block: str):
+        """(indices into theta, means, sds) of the block's normal priors."""
+        idx = [i for i, n in enumerate(self.names) if n in PRIORS and self.block_of(i) == block]
+        mu = np.array([PRIORS[self.names[i]][0] for i in idx])
+        sd = np.array([PRIORS[self.names[i]][1] for i in idx])
+        return np.array(idx, dtype=int), mu, sd
+
+    def block_of(self, i: int) -> str:
+        return next(b for b, s in self.blocks.items() if s.start <= i < s.stop)
+
+
+class Data(NamedTuple):
+    """The training data with their measurement sds (SI)."""
+
+    t: pipeline.Targets
+    static_sv_sd: np.ndarray  # m^3
+    peak_force_sd: np.ndarray  # N
+    mech_work_sd: np.ndarray  # J
+    dynamic_sv: np.ndarray  # m^3
+    dynamic_sv_sd: np.ndarray  # m^3
+
+
+def training_data(data) -> Data:
+    """The targets of the fit and the paper's SDs (Sec. III-D) in SI."""
+    t = pipeline.targets(data)
+    b = data.fig10_bench
+    dyn = np.asarray(b["dynamic_sv_ml"], float) * 1e-6
+    dyn_sd = np.asarray(b["dynamic_sv_sd_ml"], float) * 1e-6
+    e = np.asarray(b["efficiency"], float)
+    work_rel = np.sqrt((dyn_sd / dyn) ** 2 + (EFFICIENCY_ROUNDING / e) ** 2)
+    return Data(
+        t=t,
+        static_sv_sd=np.asarray(t.static_sv_sd, float),
+        peak_force_sd=np.asarray(b["peak_force_sd_N"], float),
+        mech_work_sd=work_rel * t.mech_work,
+        dynamic_sv=dyn,
+        dynamic_sv_sd=dyn_sd,
+    )
+
+
+def ef_sigma(s0_ef: float) -> float:
+    """The EF residuals' sd (fraction): Table I's rounding and the discrepancy."""
+    return float(np.sqrt(FEM_ROUNDING**2 + s0_ef**2))
+
+
+def ef_residuals(layout: Layout, d: Data, s0: Sigmas):
+    """r_ef(theta): the fit's stage-1 residuals (soft-L1 Table I cells, anchor, ridge) times
+    ``EF_SCALE / sigma_ef`` (module docstring)."""
+    scale = pipeline.EF_SCALE / ef_sigma(s0.ef)
+    ones = jnp.ones(len(d.t.t1_ef))
+
+    def residual(theta):
+        return pipeline.ef_residuals(layout.pump(theta), d.t, ones) * scale
+
+    return residual
+
+
+class MechanicsOutputs(NamedTuple):
+    """What the mechanics block predicts of its data (SI), before whitening."""
+
+    static_sv: jax.Array
+    peak_force: jax.Array
+    mech_work: jax.Array
+
+
+def mechanics_outputs(layout: Layout, d: Data):
+    """theta -> the quasi-static bench's SVs, peak forces and works (the rows that get a
+    discrepancy)."""
+
+    def outputs(theta):
+        b = pipeline.bench_prediction(layout.pump(theta), layout.rig(theta), d.t.afterload)
+        return MechanicsOutputs(b.static_sv, b.peak_force, b.mech_work)
+
+    return outputs
+
+
+def mechanics_fixed_rows(layout: Layout, d: Data):
+    """theta -> the mechanics block's rows whose sigmas do not depend on the discrepancy: the
+    convexity constraint and the FEM comparisons (the fit's own scales), and the priors."""
+    t = d.t
+    idx, mu, sd = layout.prior_rows("mechanics")
+
+    def rows(theta):
+        model, rig = layout.pump(theta), layout.rig(theta)
+        fem = pipeline.fem_prediction(model, rig)
+        return jnp.concatenate(
+            [
+                pipeline.convexity_residuals(model),
+                jnp.stack(
+                    [
+                        (fem.efficiency_helical - t.fem_efficiency_helical) / 0.02,
+                        (fem.efficiency_longitudinal - t.fem_efficiency_longitudinal) / 0.02,
+                        (fem.mech_ratio - t.fem_mech_ratio) / (0.1 * t.fem_mech_ratio),
+                        (fem.hydraulic_ratio - t.fem_hydraulic_ratio)
+                        / (0.1 * t.fem_hydraulic_ratio),
+                    ]
+                ),
+                (theta[idx] - mu) / sd,
+            ]
+        )
+
+    return rows
+
+
+def mechanics_sds(d: Data, s0: Sigmas) -> MechanicsOutputs:
+    """The sds (SI) of the mechanics block's bench rows: measurement and discrepancy."""
+    return MechanicsOutputs(
+        np.sqrt(d.static_sv_sd**2 + s0.static_sv**2),
+        np.sqrt(d.peak_force_sd**2 + s0.force**2),
+        np.sqrt(d.mech_work_sd**2 + s0.work**2),
+    )
+
+
+def joint_residuals(layout: Layout, d: Data, s0: Sigmas, scene):
+    """r(theta) of the mechanics and bench block (:data:`fit.posterior.laplace.JOINT`): the
+    quasi-static SVs and peak forces over their sds, :func:`mechanics_fixed_rows`, then
+    :func:`bench_residuals`. The paper's work M enters once, as the dynamic work."""
+    outputs, fixed = mechanics_outputs(layout, d), mechanics_fixed_rows(layout, d)
+    bench = bench_residuals(layout, d, s0, scene)
+    sds = mechanics_sds(d, s0)
+    t = d.t
+
+    def residual(theta):
+        o = outputs(theta)
+        return jnp.concatenate(
+            [
+                (o.static_sv - t.static_sv) / sds.static_sv,
+                (o.peak_force - t.peak_force) / sds.peak_force,
+                fixed(theta),
+                bench(theta),
+            ]
+        )
+
+    return residual
+
+
+class BenchOutputs(NamedTuple):
+    """The dynamic bench at 30 bpm (SI): the paper's dynamic SV (the pump's EDV - ESV), the
+    mechanical work of the pull and the peak force (not fitted: validation)."""
+
+    dynamic_sv: jax.Array
+    mech_work: jax.Array
+    peak_force: jax.Array
+
+
+def bench_scene_at(scene, layout: Layout, theta):
+    """The bench scene with theta's tube, viscoelasticity, column and cable friction."""
+    tube = jnp.exp(theta[layout.blocks["bench"]])
+    rig = layout.rig(theta)
+    return scene.replace(
+        **dict(zip(BENCH_SCENE_FIELDS, tube, strict=True)),
+        column_diameter=rig.column_diameter,
+        cable_friction=rig.cable_friction,
+    )
+
+
+def bench_config():
+    """fit.bench's solver: Tsit5 at rtol 1e-7, forward-mode derivatives."""
+    from cardiosoft.solve import SolverConfig
+
+    return SolverConfig(
+        diffrax.Tsit5(), rtol=BENCH_RTOL, atol=BENCH_ATOL, adjoint=diffrax.ForwardMode()
+    )
+
+
+def bench_outputs(layout: Layout, scene, heads):
+    """theta -> :class:`BenchOutputs` at the column heads (Pa), one batched solve."""
+    from cardiosoft.batch import solve_beats
+
+    config = bench_config()
+
+    def outputs(theta):
+        out = solve_beats(
+            bench_scene_at(scene, layout, theta),
+            afterload=heads,
+            save="metrics",
+            pump=layout.pump(theta),
+            config=config,
+        )
+        m = out.metrics
+        ok = out.succeeded & out.steady
+        bad = jnp.where(ok, 0.0, jnp.nan)  # a failed solve must not pass for a number
+        return BenchOutputs(m.stroke_volume + bad, m.mech_work + bad, m.peak_force + bad)
+
+    return outputs
+
+
+def bench_sds(d: Data, s0: Sigmas):
+    """(dynamic SV sd, work sd) of the bench rows (SI): measurement and discrepancy."""
+    return (
+        np.sqrt(d.dynamic_sv_sd**2 + s0.dynamic_sv**2),
+        np.sqrt(d.mech_work_sd**2 + s0.work**2),
+    )
+
+
+def bench_residuals(layout: Layout, d: Data, s0: Sigmas, scene):
+    """r_bench(theta): dynamic SVs and works over their sds, then the bench priors."""
+    outputs = bench_outputs(layout, scene, d.t.afterload)
+    sv_sd, work_sd = bench_sds(d, s0)
+    idx, mu, sd = layout.prior_rows("bench")
+
+    def residual(theta):
+        o = outputs(theta)
+        return jnp.concatenate(
+            [
+                (o.dynamic_sv - d.dynamic_sv) / sv_sd,
+                (o.mech_work - d.t.mech_work) / work_sd,
+                (theta[idx] - mu) / sd,
+            ]
+        )
+
+    return residual

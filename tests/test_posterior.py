@@ -1,0 +1,214 @@
+"""The posterior (fit.posterior), its predictive bands (cardiosoft.posterior) and their
+held-out checks (issue #24).
+
+Independent sources: closed forms of a linear-Gaussian cut posterior and exact least-squares
+refits for the Laplace and leave-one-out machinery; scipy's Wilson interval; Table II (held out
+of the fit) and the paper's 30-bpm bench for the bands.
+"""
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+from scipy.stats import binomtest
+
+from cardiosoft import simulate
+from cardiosoft.batch import ensemble_size
+from cardiosoft.datasets import load_paper_data
+from cardiosoft.posterior import EnsembleRun, discrepancy_sd, predictive_bands
+from cardiosoft.pump import DEFAULT_ARTIFACT, _artifact_dir, load_card, load_posterior
+from cardiosoft.units import mmHg
+from fit.posterior import check, laplace
+
+HEADS = np.array([30.0, 90.0]) * mmHg
+CARD = {"discrepancy": {  # a posterior card's discrepancy: s0 1, s1 2 in every type
+    "distance": {"rate_bpm": 30.0, "rate_scale_bpm": 30.0, "afterload_mmHg": [30.0, 90.0],
+                 "afterload_scale_mmHg": 30.0},
+    **{k: {"s0": 1.0, "s1": 2.0} for k in ("static_sv", "dynamic_sv", "force", "work")},
+}}
+
+
+def test_bands_leave_out_and_count_failed_draws():
+    """A draw that failed at a member is left out of that member's bands and counted."""
+    ok = np.array([[True, True], [False, False], [True, True]])
+    values = {k: np.array([[1.0, 2.0], [np.nan, np.nan], [1.5, 2.5]]) for k in (
+        "dynamic_sv_ml", "peak_force_N", "mech_work_J", "efficiency", "ef",
+        "cardiac_output_l_min")}
+    bands = predictive_bands(EnsembleRun(values, ok, 30.0, HEADS / mmHg, ["", ""]), CARD)
+    assert [b["dynamic_sv_ml"].failed for b in bands] == [1, 1]
+    assert [b["dynamic_sv_ml"].draws for b in bands] == [2, 2]
+    assert all(math.isfinite(b["dynamic_sv_ml"].low) for b in bands)
+
+
+def test_cut_laplace_is_the_linear_gaussian_cut_posterior():
+    """For linear residuals the cut posterior is Gaussian in closed form: theta_a ~ N(., (A^T
+    A)^-1); theta_b's refit given theta_a is lstsq(B2, y - B1 theta_a), linear in theta_a, plus
+    N(0, (B2^T B2)^-1). Checked against numpy's least squares, not the normal equations."""
+    rng = np.random.default_rng(1)
+    a, b1, b2 = rng.normal(size=(6, 2)), rng.normal(size=(5, 2)), rng.normal(size=(5, 3))
+    lap = laplace.cut_laplace(np.zeros(5), [a, np.hstack([b1, b2])],
+                              [slice(0, 2), slice(2, 5)])
+    cov_a = np.linalg.inv(a.T @ a)
+    gain = np.linalg.lstsq(b2, -b1, rcond=None)[0]  # d theta_b* / d theta_a
+    expected = np.zeros((5, 5))
+    expected[:2, :2] = cov_a
+    expected[2:, :2] = gain @ cov_a
+    expected[:2, 2:] = expected[2:, :2].T
+    expected[2:, 2:] = gain @ cov_a @ gain.T + np.linalg.inv(b2.T @ b2)
+    np.testing.assert_allclose(lap.covariance, expected, rtol=1e-10, atol=1e-12)
+
+
+def test_linearised_leave_one_out_is_exact_for_a_linear_model():
+    """One Gauss-Newton step without row i is the exact refit of a linear model: the left-out
+    errors equal those of least-squares refits without each row."""
+    rng = np.random.default_rng(2)
+    x, y = rng.normal(size=(8, 3)), rng.normal(size=8)
+    sd = rng.uniform(0.5, 2.0, size=8)
+    prior_j, prior_r = 0.3 * np.eye(3), np.zeros(3)  # theta = 0: a prior row pulls to 0
+    errors = laplace.loo_errors(-y, range(8), sd, x, prior_r, prior_j)
+    for i in range(8):
+        keep = np.arange(8) != i
+        lhs = np.vstack([x[keep] / sd[keep, None], prior_j])
+        rhs = np.concatenate([y[keep] / sd[keep], np.zeros(3)])
+        theta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        assert math.isclose(errors[i], x[i] @ theta - y[i], rel_tol=1e-9, abs_tol=1e-12)
+
+
+@pytest.mark.parametrize("k", [9, 8, 5])
+def test_wilson_interval_matches_scipy(k):
+    lo, hi = check.wilson(k, 9)
+    ci = binomtest(k, 9).proportion_ci(method="wilson")
+    assert math.isclose(lo, ci.low, abs_tol=1e-9) and math.isclose(hi, ci.high, abs_tol=1e-9)
+
+
+def test_interval_score_charges_misses():
+    """Gneiting and Raftery's score: the width inside; the width plus 2/alpha times the miss
+    outside (alpha 0.05: 40 per unit)."""
+    np.testing.assert_allclose(check.interval_score([0, 0, 0], [2, 2, 2], [1, 3, -0.5]),
+                               [2.0, 2.0 + 40.0, 2.0 + 20.0])
+
+
+def test_discrepancy_grows_away_from_the_calibrated_conditions():
+    card = CARD
+    assert discrepancy_sd(card, "force", 30.0, 60.0) == pytest.approx(1.0)
+    one = math.sqrt(1 + 4 * (1 - math.exp(-1)))
+    assert discrepancy_sd(card, "force", 60.0, 60.0) == pytest.approx(one)  # a rate away
+    assert discrepancy_sd(card, "force", 30.0, 120.0) == pytest.approx(one)  # a head away
+    assert discrepancy_sd(card, "force", 30.0, None) == pytest.approx(math.sqrt(5))
+    assert discrepancy_sd(card, "static_sv", 120.0, 60.0) == pytest.approx(1.0)  # no rate
+
+
+def test_load_posterior_checks_its_hashes(tmp_path):
+    """The shipped posterior loads as an ensemble; a changed draw or draws computed for other
+    weights are refused."""
+    post = load_posterior()
+    size = ensemble_size(post.pump, post.scene_draws)
+    assert size == post.card["draws"]
+    assert set(post.scene_draws) == set(post.scene_centre)
+    src = _artifact_dir()
+    card = load_card()
+    weights = tmp_path / f"{DEFAULT_ARTIFACT}.eqx"
+    for name in (f"{DEFAULT_ARTIFACT}.eqx", f"{DEFAULT_ARTIFACT}.json", card["posterior"]["file"],
+                 card["posterior"]["card"]):
+        shutil.copy(src / name, tmp_path / name)
+    load_posterior(weights)
+    npz = tmp_path / card["posterior"]["file"]
+    with np.load(npz) as f:
+        arrays = dict(f)
+    arrays["theta"] = arrays["theta"] + 1e-12
+    np.savez(npz, **arrays)
+    with pytest.raises(ValueError, match="sha256"):
+        load_posterior(weights)
+    shutil.copy(src / card["posterior"]["file"], npz)
+    pcard = tmp_path / card["posterior"]["card"]
+    other = json.loads(pcard.read_text()) | {"weights_sha256": "0" * 64}
+    pcard.write_text(json.dumps(other))
+    with pytest.raises(ValueError, match="not for"):
+        load_posterior(weights)
+
+
+def test_table2_held_out_inside_their_bands():
+    """Issue #24: at least 8 of Table II's 9 experiments (never fitted) inside their 95 %
+    predictive bands. Loose on purpose: 9 experiments at nominal 95 % cover all 9 with
+    probability 0.63 and at least 8 with 0.93; Monte Carlo moves a band edge by ~0.3 ml."""
+    cov = check.table2(load_posterior(), load_paper_data())
+    assert cov.inside.sum() >= 8
+
+
+def test_simulate_uncertainty_refuses_a_closed_loop(tmp_path, capsys):
+    status = simulate.main(["--scene", "heart", "--uncertainty", "--out", str(tmp_path / "o")])
+    assert status == 2
+    assert "--uncertainty" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_simulate_uncertainty_refuses_draws_out_of_range(tmp_path, capsys):
+    status = simulate.main(["--uncertainty", "--draws", "1", "--out", str(tmp_path / "o")])
+    assert status == 2
+    assert "draws = 1" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_simulate_uncertainty_writes_bands(tmp_path, capsys):
+    """``simulate --uncertainty`` (4 draws, 30 bpm, fixed beats) prints and writes each metric's
+    band, with the draws' own (narrower: no discrepancy) beside it; the figure is written."""
+    out = tmp_path / "o"
+    status = simulate.main(["--bpm", "30", "--beats", "2", "--uncertainty", "--draws", "4",
+                            "--out", str(out)])
+    assert status == 0
+    assert "95 % predictive bands" in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["uncertainty"]["draws"] == 4
+    for r in summary["records"]:
+        for key in ("static_sv_ml", "dynamic_sv_ml", "peak_force_N", "mech_work_J", "ef"):
+            lo, hi = r[f"{key}_band"]
+            plo, phi = r[f"{key}_band_parameters"]
+            assert lo < hi and lo <= plo <= phi <= hi
+    assert (out / "figure.png").is_file()
+
+
+@pytest.mark.slow
+def test_bench_at_30_bpm_inside_its_bands():
+    """Issue #24: the paper's dynamic SVs (fitted) and peak forces (not fitted) at 30 bpm inside
+    their 95 % bands, no draw failing silently (failures are counted, at most 2 %)."""
+    b = check.bench(load_posterior(), load_paper_data())
+    assert b.dynamic_sv.inside.all() and b.peak_force.inside.all()
+    assert b.failed <= 0.02 * 3 * load_posterior().card["draws"]
+
+
+@pytest.mark.slow
+def test_posterior_recomputes_to_the_shipped_draws():
+    """``python -m fit.posterior`` is reproducible: recomputed with the card's seed, each
+    parameter's draws have the shipped mean and sd to within their Monte Carlo error (3
+    standard errors: sd / sqrt(S) for the mean, sd / sqrt(2 S) for the sd), not bit for bit
+    (the convexity rejection may flip a draw at its edge on another CPU)."""
+    from fit.posterior import artifact
+
+    post = load_posterior()
+    arrays, pcard, _, _ = artifact.compute(n_draws=post.card["draws"], seed=post.card["seed"],
+                                           progress=lambda m: None)
+    with np.load(_artifact_dir() / post.card["file"]) as f:
+        shipped = f["theta"]
+    new, n = arrays["theta"], len(shipped)
+    sd = shipped.std(axis=0, ddof=1)
+    assert np.all(np.abs(new.mean(axis=0) - shipped.mean(axis=0)) <= 3 * sd / np.sqrt(n))
+    assert np.all(np.abs(new.std(axis=0, ddof=1) - sd) <= 3 * sd / np.sqrt(2 * n))
+    for kind in laplace.TYPES:
+        assert pcard["discrepancy"][kind]["s0"] == pytest.approx(
+            post.card["discrepancy"][kind]["s0"], rel=1e-3, abs=1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue #24: the EF law's posterior is not Gaussian in the "
+                   "fit's raw coordinates: NUTS finds ef_quadratic's sd 2-3x the Laplace's and "
+                   "does not mix (R-hat to 1.07, bulk ESS 39-400, 11 divergences in 3200; "
+                   "measured 2026-12-03, python -m fit.posterior --nuts)")
+def test_nuts_agrees_with_laplace_on_the_ef_block():
+    """NUTS on the EF block, started at the Laplace with its covariance: R-hat < 1.01, bulk ESS
+    > 400, no divergences, marginal sds within 20 % (issue #24)."""
+    from fit.posterior.__main__ import main
+
+    assert main(["--nuts", "--blocks", "ef", "--chains", "4", "--warmup", "300",
+                 "--samples", "500"]) == 0
