@@ -27,9 +27,12 @@ import time
 from pathlib import Path
 
 OUTPUT_FILES = ("summary.json", "traces.csv", "figure.png")
-UNCERTAINTY_DRAWS = 64
+UNCERTAINTY_DRAWS = 48
 """Posterior draws ``--uncertainty`` solves by default: the ensemble's cost grows with them
-(every draw at every afterload, the batch running to its slowest member)."""
+(every draw at every afterload, the batch running to its slowest member). With 48, ``--bpm 60
+--uncertainty`` takes 2.3x the plain run's wall time from a fresh process (cold compile cache;
+2.45x warm) on 2 cores, within the 3x that issue #24 allows; 64 took 2.5x and 3.3x
+(``benchmarks/uncertainty.py``, measured 2026-12-03)."""
 
 
 def parser(prog: str | None = None):
@@ -115,6 +118,13 @@ def parser(prog: str | None = None):
         metavar="N",
         help=f"with --uncertainty: solve the posterior's first N draws (default "
         f"{UNCERTAINTY_DRAWS}; the artifact holds 256)",
+    )
+    p.add_argument(
+        "--explain",
+        action="store_true",
+        help="with --uncertainty: which parameters dominate each metric's band, and how far "
+        "one more measurement (tube length, SV or force at 60 bpm, shell compliance) would "
+        "narrow it (linearised; one jax.jacfwd, about a minute more)",
     )
     add_output_options(p, "summary.json, traces.csv, figure.png", plot="the figure")
     add_report_options(p)
@@ -297,6 +307,8 @@ def _configure(args, out_dir):
         raise ValueError(f"--compare-paper: scene {scene.name} is not the paper's bench")
     if args.verify and loop:
         raise ValueError(f"--verify: not available for a closed-loop scene ({scene.name}) yet")
+    if args.explain and not args.uncertainty:
+        raise ValueError("--explain: explains the bands of --uncertainty; give both")
     if args.uncertainty and (loop or scene.static):
         kind = "a closed loop" if loop else "static"
         raise ValueError(
@@ -429,6 +441,13 @@ def main(argv=None, prog: str | None = None) -> int:
                 "discrepancy; --out: summary.json has the draws' own bands too)"
             )
             print(_band_table(records, result.scene))
+    if args.explain:
+        from cardiosoft.explain import explain
+
+        explanation = explain(scene, posterior, progress=console.say)
+        uncertainty["explain"] = explanation.record()
+        if not args.quiet:
+            print(explanation.table())
     report_members(console, result.members, steady_asked=args.beats is None)
     extra = console.record()
     if uncertainty is not None:

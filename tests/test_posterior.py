@@ -212,3 +212,17 @@ def test_nuts_agrees_with_laplace_on_the_ef_block():
 
     assert main(["--nuts", "--blocks", "ef", "--chains", "4", "--warmup", "300",
                  "--samples", "500"]) == 0
+
+
+@pytest.mark.slow
+def test_simulate_explain_records_shares_and_measurements(tmp_path):
+    """``--uncertainty --explain``: each prediction's shares lie in [0, 1] and no measurement
+    widens its band (a measurement only adds information)."""
+    out = tmp_path / "o"
+    assert simulate.main(["--bpm", "60", "--uncertainty", "--draws", "4", "--explain",
+                          "--no-plot", "--out", str(out), "--quiet"]) in (0,)
+    explained = json.loads((out / "summary.json").read_text())["uncertainty"]["explain"]
+    assert len(explained["predictions"]) == 9  # SV, force, efficiency at three heads
+    for p in explained["predictions"].values():
+        assert all(0.0 <= s <= 1.0 + 1e-9 for s in p["shares"].values())
+        assert all(v <= p["sd_parameters"] * (1 + 1e-9) for v in p["sd_after"].values())
