@@ -148,12 +148,16 @@ def _scene_draws(scene, posterior) -> dict:
     return out
 
 
-def ensemble_run(scene, posterior, *, beats=None, steady="beats", config=None) -> EnsembleRun:
+def ensemble_run(
+    scene, posterior, *, omega=None, shortening=None, afterload=None, beats=None,
+    steady="beats", config=None,
+) -> EnsembleRun:
     """Solve every draw of ``posterior`` (:class:`cardiosoft.pump.PosteriorDraws`) at every
-    member of ``scene`` (its afterloads) in one batched call, and the quasi-static strokes of
-    a water-column scene likewise. ``beats``, ``steady`` and ``config`` as in
-    :func:`cardiosoft.batch.solve_beats`; beat after beat, the draws get at least
-    :data:`ENSEMBLE_MAX_BEATS` beats to reach their steady state."""
+    member of ``scene`` (its afterloads; or ``omega``, ``shortening``, ``afterload`` (Pa) as
+    members, broadcast as in :func:`cardiosoft.batch.solve_beats`) in one batched call, and
+    the quasi-static strokes of a water-column scene likewise. ``beats``, ``steady`` and
+    ``config`` as in :func:`cardiosoft.batch.solve_beats`; beat after beat, the draws get at
+    least :data:`ENSEMBLE_MAX_BEATS` beats to reach their steady state."""
     from cardiosoft.batch import solve_beats, solve_static
     from cardiosoft.loop_scene import LoopScene
 
@@ -166,9 +170,10 @@ def ensemble_run(scene, posterior, *, beats=None, steady="beats", config=None) -
         raise ValueError(f"--uncertainty: scene {scene.name} is static; use bench-dynamic")
     draws = _scene_draws(scene, posterior)
     scene = scene.replace(max_beats=max(scene.max_beats, ENSEMBLE_MAX_BEATS))
+    members = dict(omega=omega, shortening=shortening, afterload=afterload)
     out = solve_beats(
         scene, save="metrics", pump=posterior.pump, scene_draws=draws, beats=beats,
-        steady=steady, config=config,
+        steady=steady, config=config, **members,
     )
     m = out.metrics
     ok = np.asarray(out.succeeded) & (np.asarray(out.steady) | (beats is not None))
@@ -182,7 +187,7 @@ def ensemble_run(scene, posterior, *, beats=None, steady="beats", config=None) -
     }
     heads = None
     if scene.afterload.has_heads:
-        static = solve_static(scene, pump=posterior.pump, scene_draws=draws)
+        static = solve_static(scene, pump=posterior.pump, scene_draws=draws, **members)
         values["static_sv_ml"] = np.asarray(static.stroke_volume) / ml
         heads = np.asarray(out.members["afterload"]) / mmHg
     messages = []

@@ -51,6 +51,7 @@ def parser(prog: str | None = None):
     add_scene_option(p, static=False, loops=True)
     _target_options(p)
     _search_options(p)
+    _uncertainty_options(p)
     add_output_options(p, "design.json and design.png", plot="the figure")
     add_report_options(p)
     return p
@@ -135,6 +136,50 @@ def _search_options(p) -> None:
         "beats ring past the scene's max_beats) or auto (the default: shooting on the "
         "water-column bench, beats on a Windkessel scene)",
     )
+
+
+def _uncertainty_options(p) -> None:
+    from cardiosoft.simulate import UNCERTAINTY_DRAWS
+
+    p.add_argument(
+        "--uncertainty",
+        action="store_true",
+        help="report the 95 %% predictive band of each SV the design reaches (the surrogate's "
+        "posterior draws plus the model discrepancy; cardiosoft.design.robust)",
+    )
+    p.add_argument(
+        "--robust",
+        action="store_true",
+        help="then look for the design whose SV bands stay within --tol of every target, or "
+        "say why none does",
+    )
+    p.add_argument(
+        "--draws",
+        type=int,
+        default=UNCERTAINTY_DRAWS,
+        metavar="N",
+        help=f"with --uncertainty or --robust: the posterior's first N draws (default "
+        f"{UNCERTAINTY_DRAWS})",
+    )
+
+
+def _band_report(result: DesignResult, bands, robust) -> str:
+    """The SV each target reaches with its band; the robust search's answer."""
+    rows = [
+        [fmt(t.afterload_mmHg, ".0f"), fmt(t.bpm, "g"), fmt(t.target_sv_ml, ".2f"),
+         fmt(t.sv_ml, ".2f"), f"[{fmt(b.low, '.2f')}, {fmt(b.high, '.2f')}]",
+         f"[{fmt(b.parameter_low, '.2f')}, {fmt(b.parameter_high, '.2f')}]", str(b.failed)]
+        for t, b in zip(result.targets, bands, strict=True)
+    ]
+    out = "\n95 % predictive bands of the SV at the design (posterior draws and the model " \
+        "discrepancy; the draws alone beside)\n" + table(
+            ["afterload", "bpm", "target SV", "SV", "band", "draws' band", "failed draws"],
+            ["mmHg", "", "ml", "ml", "ml", "ml", ""], rows)
+    if robust is not None:
+        where = ("" if robust.omega is None else
+                 f"Omega {robust.omega:.3f}, C {robust.shortening:.4f}: ")
+        out += f"\nrobust design: {where}{robust.reason}"
+    return out
 
 
 def _head(result: DesignResult) -> list[str]:
@@ -286,12 +331,14 @@ def _check(scene, kwargs) -> None:
     check_method(kwargs["accuracy"], kwargs["steady"])
 
 
-def _write(out_dir: Path, result: DesignResult, plot: bool, console: Console) -> None:
+def _write(
+    out_dir: Path, result: DesignResult, plot: bool, console: Console, extra=None
+) -> None:
     """design.json (the result, the exit status) and the figure, moved into place together."""
     from cardiosoft.design.figure import plot_design
     from cardiosoft.files import write_together
 
-    record = result.to_json() | {"exit_status": console.status()}
+    record = result.to_json() | (extra or {}) | {"exit_status": console.status()}
     with write_together(out_dir) as staging:
         (staging / "design.json").write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
         if plot:
@@ -329,6 +376,12 @@ def main(argv=None, prog: str | None = None) -> int:
                 raise ValueError(f"{flag}: only a closed-loop scene has atria; {scene.name} not")
         kwargs = _arguments(args)
         _check(scene, kwargs)
+        posterior = None
+        if args.uncertainty or args.robust:
+            from cardiosoft.posterior import first_draws
+            from cardiosoft.pump import load_posterior
+
+            posterior = first_draws(load_posterior(), args.draws)
     except (ValueError, FileNotFoundError) as err:
         return fail(err)
     plot = out_dir is not None and not args.no_plot
@@ -343,8 +396,41 @@ def main(argv=None, prog: str | None = None) -> int:
         )
     except ValueError as err:  # a problem only the search could see
         return fail(err)
+    text = None if args.quiet else report(result)
+    extra = None
+    if posterior is not None:
+        text, extra = _uncertainty(scene, result, posterior, args.robust, text, console)
     return console.conclude(
         result,
-        None if args.quiet else report(result),
-        None if out_dir is None else lambda: _write(out_dir, result, plot, console),
+        text,
+        None if out_dir is None else lambda: _write(out_dir, result, plot, console, extra),
     )
+
+
+def _uncertainty(scene, result, posterior, robust: bool, text, console):
+    """The design's SV bands (and the robust search): the report's text and design.json's
+    ``uncertainty`` entry; a robust design that does not exist, and failed draws, flagged."""
+    from cardiosoft.design.robust import robust_design, sv_bands
+
+    console.say("uncertainty: every posterior draw at the design's targets ...")
+    d = result.design
+    bands = list(sv_bands(scene, d["omega"], d["shortening"], result.targets, posterior)[0])
+    found = robust_design(scene, result, posterior, console.say) if robust else None
+    for t, b in zip(result.targets, bands, strict=True):
+        if b.failed:
+            console.flag(t.where, f"{b.failed} of {b.failed + b.draws} posterior draws failed "
+                         "or missed the steady state and are left out of the SV's band")
+    if found is not None and not found.within:
+        console.flag("robust design", found.reason)
+    record = {
+        "uncertainty": {
+            "draws": int(bands[0].draws + bands[0].failed),
+            "sv_band_ml": [[b.low, b.high] for b in bands],
+            "sv_band_parameters_ml": [[b.parameter_low, b.parameter_high] for b in bands],
+            "failed_draws": [b.failed for b in bands],
+            "robust": None if found is None else found.record(),
+        }
+    }
+    if text is not None:
+        text += "\n" + _band_report(result, bands, found)
+    return text, record

@@ -26,6 +26,8 @@ def loop_arguments(args) -> dict:
         "--maximize": args.maximize not in (None, "none"),
         "--pareto": args.pareto,
         "--tol": args.tol != TOLERANCE_ML,
+        "--uncertainty": args.uncertainty,
+        "--robust": args.robust,
     }
     for flag, given in refused.items():
         if given:
