@@ -169,10 +169,10 @@ def explain(scene, posterior, progress=print) -> Explanation:
     member, and their sd after each candidate measurement (module docstring).
     ``posterior``: :class:`cardiosoft.pump.PosteriorDraws`."""
     from cardiosoft.posterior import discrepancy_sd
-    from cardiosoft.pump import _artifact_dir, load
+    from cardiosoft.pump import artifact_dir, load
     from cardiosoft.scene import load_scene
 
-    with np.load(_artifact_dir() / posterior.card["file"], allow_pickle=False) as f:
+    with np.load(artifact_dir() / posterior.card["file"], allow_pickle=False) as f:
         arrays = {k: f[k] for k in ("names", "centre", "transform", "positive")}
     names = tuple(str(n) for n in arrays["names"])
     theta = jnp.asarray(arrays["centre"])

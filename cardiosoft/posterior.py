@@ -83,7 +83,7 @@ class EnsembleRun(NamedTuple):
 
     values: dict
     ok: np.ndarray
-    bpm: float
+    bpm: np.ndarray  # per member (or one for all)
     afterload_mmHg: np.ndarray | None
     messages: list  # per member: the first failed draw's message, or ""
 
@@ -149,13 +149,13 @@ def _scene_draws(scene, posterior) -> dict:
 
 
 def ensemble_run(
-    scene, posterior, *, omega=None, shortening=None, afterload=None, beats=None,
+    scene, posterior, *, omega=None, shortening=None, afterload=None, bpm=None, beats=None,
     steady="beats", config=None,
 ) -> EnsembleRun:
     """Solve every draw of ``posterior`` (:class:`cardiosoft.pump.PosteriorDraws`) at every
-    member of ``scene`` (its afterloads; or ``omega``, ``shortening``, ``afterload`` (Pa) as
-    members, broadcast as in :func:`cardiosoft.batch.solve_beats`) in one batched call, and
-    the quasi-static strokes of a water-column scene likewise. ``beats``, ``steady`` and
+    member of ``scene`` (its afterloads; or ``omega``, ``shortening``, ``afterload`` (Pa),
+    ``bpm`` as members, broadcast as in :func:`cardiosoft.batch.solve_beats`) in one batched
+    call, and the quasi-static strokes of a water-column scene likewise. ``beats``, ``steady`` and
     ``config`` as in :func:`cardiosoft.batch.solve_beats`; beat after beat, the draws get at
     least :data:`ENSEMBLE_MAX_BEATS` beats to reach their steady state."""
     from cardiosoft.batch import solve_beats, solve_static
@@ -173,7 +173,7 @@ def ensemble_run(
     members = dict(omega=omega, shortening=shortening, afterload=afterload)
     out = solve_beats(
         scene, save="metrics", pump=posterior.pump, scene_draws=draws, beats=beats,
-        steady=steady, config=config, **members,
+        steady=steady, config=config, bpm=bpm, **members,
     )
     m = out.metrics
     ok = np.asarray(out.succeeded) & (np.asarray(out.steady) | (beats is not None))
@@ -194,7 +194,7 @@ def ensemble_run(
     for i in range(ok.shape[1]):
         bad = np.flatnonzero(~ok[:, i])
         messages.append(out.message((int(bad[0]), i)) if bad.size else "")
-    return EnsembleRun(values, ok, float(scene.bpm), heads, messages)
+    return EnsembleRun(values, ok, np.asarray(out.members["bpm"], float), heads, messages)
 
 
 def predictive_bands(ens: EnsembleRun, card: dict, *, seed: int = 0) -> list[dict]:
@@ -204,12 +204,13 @@ def predictive_bands(ens: EnsembleRun, card: dict, *, seed: int = 0) -> list[dic
     n_draws, n_members = ens.ok.shape
     out = []
     lo_q, hi_q = 0.5 - BAND / 2, 0.5 + BAND / 2
+    rates = np.broadcast_to(np.asarray(ens.bpm, float), (n_members,))
     for i in range(n_members):
         head = None if ens.afterload_mmHg is None else float(ens.afterload_mmHg[i])
         ok = ens.ok[:, i]
         kinds = ("static_sv", "dynamic_sv", "force", "work")
         z = {k: rng.standard_normal((n_draws, NOISE_SAMPLES)) for k in kinds}
-        sd = {k: discrepancy_sd(card, k, ens.bpm, head) for k in kinds}
+        sd = {k: discrepancy_sd(card, k, float(rates[i]), head) for k in kinds}
         v = {k: a[:, i, None] for k, a in ens.values.items()}
         delta_sv = z["dynamic_sv"] * sd["dynamic_sv"] / ml  # the pump's SV and what follows
         delta_work = z["work"] * sd["work"]

@@ -95,6 +95,7 @@ __all__ = [
     "Domain",
     "PosteriorDraws",
     "PumpSurrogate",
+    "artifact_dir",
     "artifact_path",
     "load",
     "load_posterior",
@@ -422,7 +423,7 @@ class PumpSurrogate(eqx.Module):
 
 
 # --------------------------------------------------------------------------------- artifacts
-def _artifact_dir() -> Path:
+def artifact_dir() -> Path:
     """The folder holding the shipped surrogates, after an editable or a regular install."""
     packaged = resources.files("cardiosoft") / "_surrogates"
     if packaged.is_dir():
@@ -466,7 +467,7 @@ def artifact_path(path=None) -> Path:
     """The weights file (``.eqx``) of the surrogate at ``path`` (its ``.eqx`` or ``.json``;
     default: the shipped one)."""
     if path is None:
-        return _artifact_dir() / f"{DEFAULT_ARTIFACT}.eqx"
+        return artifact_dir() / f"{DEFAULT_ARTIFACT}.eqx"
     path = Path(path)
     return path if path.suffix == ".eqx" else path.with_suffix(".eqx")
 

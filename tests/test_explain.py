@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cardiosoft.explain import rebuild, sd_after, variance_shares
-from cardiosoft.pump import _artifact_dir, load, load_posterior
+from cardiosoft.pump import artifact_dir, load, load_posterior
 from cardiosoft.scene import load_scene
 
 
@@ -42,7 +42,7 @@ def test_rebuild_at_the_centre_is_the_shipped_pump_and_bench():
     """The posterior's raw centre maps back onto the shipped surrogate and the bench scene's
     calibrated numbers (which the scene file rounds to 4-5 digits)."""
     post = load_posterior()
-    with np.load(_artifact_dir() / post.card["file"]) as f:
+    with np.load(artifact_dir() / post.card["file"]) as f:
         names, centre = [str(n) for n in f["names"]], jnp.asarray(f["centre"])
     pump, values = rebuild(load(), names, centre)
     shipped = load()

@@ -18,7 +18,7 @@ from cardiosoft import simulate
 from cardiosoft.batch import ensemble_size
 from cardiosoft.datasets import load_paper_data
 from cardiosoft.posterior import EnsembleRun, discrepancy_sd, predictive_bands
-from cardiosoft.pump import DEFAULT_ARTIFACT, _artifact_dir, load_card, load_posterior
+from cardiosoft.pump import DEFAULT_ARTIFACT, artifact_dir, load_card, load_posterior
 from cardiosoft.units import mmHg
 from fit.posterior import check, laplace
 
@@ -107,7 +107,7 @@ def test_load_posterior_checks_its_hashes(tmp_path):
     size = ensemble_size(post.pump, post.scene_draws)
     assert size == post.card["draws"]
     assert set(post.scene_draws) == set(post.scene_centre)
-    src = _artifact_dir()
+    src = artifact_dir()
     card = load_card()
     weights = tmp_path / f"{DEFAULT_ARTIFACT}.eqx"
     for name in (f"{DEFAULT_ARTIFACT}.eqx", f"{DEFAULT_ARTIFACT}.json", card["posterior"]["file"],
@@ -189,7 +189,7 @@ def test_posterior_recomputes_to_the_shipped_draws():
     post = load_posterior()
     arrays, pcard, _, _ = artifact.compute(n_draws=post.card["draws"], seed=post.card["seed"],
                                            progress=lambda m: None)
-    with np.load(_artifact_dir() / post.card["file"]) as f:
+    with np.load(artifact_dir() / post.card["file"]) as f:
         shipped = f["theta"]
     new, n = arrays["theta"], len(shipped)
     sd = shipped.std(axis=0, ddof=1)

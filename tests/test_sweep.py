@@ -463,3 +463,32 @@ def test_help_runs_without_the_runpy_warning(tmp_path):
     )
     assert out.returncode == 0, out.stderr
     assert "usage: python -m cardiosoft.sweep" in out.stdout
+
+
+def test_uncertainty_adds_the_bands_that_simulate_computes():
+    """``uncertainty=N``: each point's band variables are the predictive bands that
+    cardiosoft.posterior gives the same member by itself (the path of simulate
+    --uncertainty); the tolerance is the solver's (the batches differ in size)."""
+    from cardiosoft.posterior import ensemble_run, first_draws, predictive_bands
+    from cardiosoft.pump import load_posterior
+    from cardiosoft.units import mmHg
+
+    ds = design_sweep(
+        "bench-dynamic", omega=4.0, shortening=0.4, afterload=60, bpm=30, beats=2,
+        uncertainty=4, progress=False,
+    )
+    post = first_draws(load_posterior(), 4)
+    scene = cardiosoft.load_scene("bench-dynamic").replace(bpm=30)
+    ens = ensemble_run(scene, post, afterload=60 * mmHg, beats=2)
+    band = predictive_bands(ens, post.card)[0]["dynamic_sv_ml"]
+    low, high = (float(ds[f"stroke_volume_ml_band_{e}"].values.ravel()[0])
+                 for e in ("low", "high"))
+    assert low == pytest.approx(band.low, rel=1e-5)
+    assert high == pytest.approx(band.high, rel=1e-5)
+    assert ds.attrs["uncertainty_draws"] == 4
+
+
+def test_uncertainty_refuses_draws_beyond_the_posterior():
+    with pytest.raises(ValueError, match="draws = 1000"):
+        design_sweep("bench-dynamic", omega=4.0, shortening=0.4, uncertainty=1000,
+                     progress=False)

@@ -10,6 +10,7 @@ import numpy as np
 from cardiosoft.units import ml
 
 __all__ = [
+    "BAND_VARIABLES",
     "CHUNK_FAILED",
     "MAX_STEPS",
     "METRIC_VARIABLES",
@@ -91,6 +92,23 @@ SOLVER_VARIABLES = {
 }
 VARIABLES = (*METRIC_VARIABLES, *SOLVER_VARIABLES)
 """The data variables of the Dataset, each with ``units`` and ``long_name`` attributes."""
+BAND_VARIABLES = {
+    "stroke_volume_ml": "dynamic_sv_ml",
+    "ejection_fraction": "ef",
+    "peak_force_N": "peak_force_N",
+    "mech_work_J": "mech_work_J",
+    "efficiency": "efficiency",
+    "cardiac_output_l_min": "cardiac_output_l_min",
+}
+"""With ``uncertainty``: the metrics that get ``<name>_band_low`` and ``<name>_band_high`` (the
+95 % predictive band, :func:`cardiosoft.posterior.predictive_bands`' key beside), and the
+variable ``band_failed_draws`` (posterior draws that failed or missed the steady state at the
+point and are left out of its bands)."""
+
+
+def band_names() -> list[str]:
+    """The band variables' names, in order."""
+    return [f"{name}_band_{edge}" for name in BAND_VARIABLES for edge in ("low", "high")]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,6 +122,7 @@ class Task:
     beats: int | None
     pump: object
     x64: bool
+    draws: int | None = None  # posterior draws per point (uncertainty), or None
 
 
 _PUMPS: dict = {}
@@ -120,9 +139,12 @@ def load_pump(ref):
     return ref
 
 
-def failed_result(n: int, message: str) -> dict:
+def failed_result(n: int, message: str, draws: int | None = None) -> dict:
     """The result of ``n`` points of a chunk that failed with ``message``."""
     out = {name: np.full(n, np.nan) for name in METRIC_VARIABLES}
+    if draws is not None:
+        out |= {name: np.full(n, np.nan) for name in band_names()}
+        out["band_failed_draws"] = np.full(n, draws, np.int32)
     out |= {
         "beats": np.zeros(n, np.int32),
         "steady": np.zeros(n, bool),
@@ -206,6 +228,32 @@ def solve_chunk(task: Task) -> dict:
             "flagged": flagged_points(out.metrics, n, load_pump(task.pump).domain) & succeeded,
             "error": np.array(""),
         }
+        if task.draws is not None:
+            result |= band_result(task, members, n)
         return result
     except Exception as err:  # a failed chunk must not stop the sweep
-        return failed_result(task.valid, f"{type(err).__name__}: {err}".splitlines()[0])
+        return failed_result(
+            task.valid, f"{type(err).__name__}: {err}".splitlines()[0], task.draws
+        )
+
+
+_POSTERIORS: dict = {}
+
+
+def band_result(task: Task, members: dict, n: int) -> dict:
+    """The chunk's points' predictive bands: the posterior's first ``task.draws`` draws solved
+    at every point in one batched call (:func:`cardiosoft.posterior.ensemble_run`)."""
+    from cardiosoft.posterior import ensemble_run, first_draws, predictive_bands
+    from cardiosoft.pump import load_posterior
+
+    if task.draws not in _POSTERIORS:
+        _POSTERIORS[task.draws] = first_draws(load_posterior(), task.draws)
+    posterior = _POSTERIORS[task.draws]
+    ens = ensemble_run(task.scene, posterior, beats=task.beats, **members)
+    bands = predictive_bands(ens, posterior.card)[:n]
+    out = {}
+    for name, key in BAND_VARIABLES.items():
+        out[f"{name}_band_low"] = np.array([b[key].low for b in bands])
+        out[f"{name}_band_high"] = np.array([b[key].high for b in bands])
+    out["band_failed_draws"] = np.array([b["dynamic_sv_ml"].failed for b in bands], np.int32)
+    return out

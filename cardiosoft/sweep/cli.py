@@ -71,6 +71,20 @@ def parser(prog: str | None = None):
         "--scheduler", metavar="ADDRESS", help="use the running Dask scheduler at ADDRESS"
     )
     p.add_argument("--resume", action="store_true", help="continue the unfinished sweep in --out")
+    p.add_argument(
+        "--uncertainty",
+        action="store_true",
+        help="also solve the surrogate's posterior draws at every point and add each metric's "
+        "95 %% predictive band as <metric>_band_low/_high (draws x points per chunk)",
+    )
+    p.add_argument(
+        "--draws",
+        type=int,
+        default=16,
+        metavar="N",
+        help="with --uncertainty: the posterior's first N draws (default 16: a sweep solves "
+        "N times its points)",
+    )
     add_output_options(p, "DIR/sweep.nc and DIR/map-*.png")
     p.add_argument("--no-maps", action="store_true", help="with --out: skip the figures")
     add_report_options(p)
@@ -156,6 +170,7 @@ def main(argv=None, prog: str | None = None) -> int:
                 force=args.force,
                 maps=not args.no_maps,
                 progress=not args.quiet,
+                uncertainty=args.draws if args.uncertainty else None,
                 log=console.say,
             )
     except (ValueError, FileNotFoundError) as err:
@@ -191,6 +206,15 @@ def report_points(console: Console, ds, fixed_beats: bool) -> None:
             f"{counts[NOT_STEADY]} of {total} points not steady after --beats "
             f"{int(ds.attrs['max_beats'])} (a transient; 'steady' false in the Dataset)",
         )
+    if "band_failed_draws" in ds:
+        failed = np.asarray(ds["band_failed_draws"])
+        if failed.sum():
+            console.flag(
+                "",
+                f"{int((failed > 0).sum())} of {total} points have posterior draws that failed "
+                f"or missed the steady state ({int(failed.sum())} in all), left out of their "
+                "bands ('band_failed_draws' in the Dataset)",
+            )
     flagged = int(np.asarray(ds["flagged"]).sum())
     if flagged:
         console.flag(

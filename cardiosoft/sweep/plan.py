@@ -42,6 +42,7 @@ class Plan:
     surrogate: str
     surrogate_sha256: str
     precision: str
+    draws: int | None = None  # posterior draws per point (uncertainty), or None
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -83,6 +84,7 @@ class Plan:
             "surrogate_sha256": self.surrogate_sha256,
             "precision": self.precision,
             "cardiosoft_version": version(),
+            "uncertainty_draws": self.draws,
         }
 
     def attrs(self) -> dict:
@@ -110,6 +112,21 @@ class Plan:
             "precision": self.precision,
             "chunk": self.chunk,
             "status_meanings": " ".join(STATUS),
+        } | self._uncertainty_attrs()
+
+    def _uncertainty_attrs(self) -> dict:
+        if self.draws is None:
+            return {}
+        from cardiosoft.pump import load_posterior
+
+        card = load_posterior().card
+        return {
+            "uncertainty_draws": self.draws,
+            "uncertainty": "<metric>_band_low/_high: the 95 % predictive band (the posterior's "
+            f"first {self.draws} draws, each solved at the point, plus the model discrepancy; "
+            "cardiosoft.posterior); band_failed_draws: draws left out of a point's bands",
+            "posterior": card["file"],
+            "posterior_sha256": card["sha256"],
         }
 
 
@@ -119,7 +136,8 @@ def version() -> str:
 
 
 def make_plan(
-    scene, omega, shortening, afterload, bpm, beats, accuracy, chunk, pump, precision
+    scene, omega, shortening, afterload, bpm, beats, accuracy, chunk, pump, precision,
+    draws=None,
 ) -> Plan:
     from cardiosoft._validate import check_range
     from cardiosoft.experiment import configure
@@ -153,7 +171,21 @@ def make_plan(
     size = math.prod(len(v) for v in coords.values())
     chunk = int(min(chunk, size))  # a small grid is one chunk of its own size
     pump, name, digest = surrogate_of(pump)
-    return Plan(scene, coords, beats, chunk, pump, name, digest, precision)
+    if draws is not None:
+        from cardiosoft.pump import load_posterior
+
+        if pump is not None:
+            raise ValueError(
+                "uncertainty: the posterior belongs to the shipped surrogate; sweep it "
+                "(pump=None) or compute one for yours (python -m fit.posterior --artifact)"
+            )
+        total = load_posterior().card["draws"]
+        if isinstance(draws, bool) or not isinstance(draws, int | np.integer) or not (
+            2 <= draws <= total
+        ):
+            raise ValueError(f"draws = {draws!r}: allowed 2 to {total} (the posterior's draws)")
+        draws = int(draws)
+    return Plan(scene, coords, beats, chunk, pump, name, digest, precision, draws)
 
 
 def surrogate_of(pump):

@@ -39,6 +39,7 @@ def design_sweep(
     maps: bool = True,
     progress: bool = True,
     pump=None,
+    uncertainty: int | None = None,
     log=None,
 ):
     """Simulate every point of a grid of designs, afterloads and rates; metrics only.
@@ -64,6 +65,10 @@ def design_sweep(
     - ``progress``: a progress bar on stderr (on a terminal); ``pump``: a surrogate file or
       :class:`~cardiosoft.pump.PumpSurrogate` (default the shipped one); ``log``: a function
       that gets one-line messages (default: none).
+    - ``uncertainty``: solve the shipped surrogate's first N posterior draws at every point
+      too (one batch per chunk, N times its points) and add each metric's 95 % predictive
+      band as ``<metric>_band_low`` and ``<metric>_band_high``
+      (:data:`cardiosoft.sweep.chunk.BAND_VARIABLES`).
 
     **Returns:** the ``xarray.Dataset`` (:mod:`cardiosoft.sweep`); with ``out``, opened lazily
     from ``out/sweep.nc``. Bad input raises ``ValueError`` before anything is written or solved.
@@ -74,7 +79,8 @@ def design_sweep(
     _check_places(workers, scheduler, client)
     precision = "float64" if jax.config.jax_enable_x64 else "float32"
     plan = make_plan(
-        scene, omega, shortening, afterload, bpm, beats, accuracy, chunk, pump, precision
+        scene, omega, shortening, afterload, bpm, beats, accuracy, chunk, pump, precision,
+        uncertainty,
     )
     out_dir = None if out is None else Path(out)
     partial, done = _open_store(plan, out_dir, maps, resume, force)
@@ -141,7 +147,7 @@ def _solve(plan: Plan, run, where: str, partial, done: set[int], progress: bool,
     def tasks():
         for i in todo:
             members, valid = plan.members(i)
-            yield Task(i, plan.scene, members, valid, plan.beats, plan.pump, x64)
+            yield Task(i, plan.scene, members, valid, plan.beats, plan.pump, x64, plan.draws)
 
     start = time.perf_counter()
     beats_run = 0

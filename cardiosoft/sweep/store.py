@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cardiosoft.sweep.chunk import METRIC_VARIABLES, SOLVER_VARIABLES, STATUS
+from cardiosoft.sweep.chunk import BAND_VARIABLES, METRIC_VARIABLES, SOLVER_VARIABLES, STATUS
 from cardiosoft.sweep.plan import COORDS, Plan
 
 __all__ = ["OUTPUT", "PARTIAL", "PartialSweep", "flat_range_boxes", "write_netcdf"]
@@ -118,6 +118,19 @@ def write_netcdf(plan: Plan, chunks, path: Path, failed: dict) -> None:
             if dtype == "bool":
                 var.attrs["dtype"] = "bool"  # xarray's encoding of a bool variable
             variables[name] = var
+        if plan.draws is not None:
+            for name in BAND_VARIABLES:
+                _, _, units, long_name = METRIC_VARIABLES[name]
+                for edge, which in (("low", "lower"), ("high", "upper")):
+                    var = f.create_variable(f"{name}_band_{edge}", dims, dtype="f8",
+                                            fillvalue=np.nan)
+                    var.attrs.update(units=units, long_name=f"{which} edge of the 95 % "
+                                     f"predictive band of: {long_name}")
+                    variables[f"{name}_band_{edge}"] = var
+            var = f.create_variable("band_failed_draws", dims, dtype="i4")
+            var.attrs.update(units="1", long_name="posterior draws that failed or missed the "
+                             "steady state at the point, left out of its bands")
+            variables["band_failed_draws"] = var
         variables["status"].attrs["flag_values"] = np.arange(len(STATUS), dtype=np.int8)
         variables["status"].attrs["flag_meanings"] = " ".join(STATUS)
         f.attrs.update(attrs)
