@@ -24,9 +24,11 @@ are the posterior card's (``discrepancy``; ``python -m fit.posterior`` sizes the
 the central 95 % of the samples, sampled, not linearised. Measurement noise is not in it: it
 predicts the quantity, not one more measurement of it.
 
-Efficiency (``P_a SV / M``), EF (``SV / EDV``) and cardiac output (``SV x rate``) take the
-discrepancy of their SV and work; the pump's SV (the paper's dynamic SV on the bench), the
-efficiency, EF and output share one SV discrepancy per sample, the static SV has its own.
+Efficiency (``P_a SV / M``), EF (``SV / EDV``, the SV's discrepancy taken in the filling:
+``SV / (SV + ESV)``) and cardiac output (``SV x rate``) take the discrepancy of their SV
+and work (an SV sample below zero is zero); the pump's SV (the paper's dynamic SV on the
+bench), the efficiency, EF and output share one SV discrepancy per sample, the static SV has
+its own.
 
 A draw whose solve fails or misses the steady state is left out of the band and counted
 (``Band.failed``); nothing is dropped silently.
@@ -184,6 +186,7 @@ def ensemble_run(
         "efficiency": np.asarray(m.efficiency),
         "ef": np.asarray(m.ejection_fraction),
         "cardiac_output_l_min": np.asarray(m.cardiac_output) / ml * 60 / 1000,
+        "edv_ml": np.asarray(m.edv) / ml,  # for EF's discrepancy; no band of its own
     }
     heads = None
     if scene.afterload.has_heads:
@@ -205,37 +208,42 @@ def predictive_bands(ens: EnsembleRun, card: dict, *, seed: int = 0) -> list[dic
     out = []
     lo_q, hi_q = 0.5 - BAND / 2, 0.5 + BAND / 2
     rates = np.broadcast_to(np.asarray(ens.bpm, float), (n_members,))
-    for i in range(n_members):
-        head = None if ens.afterload_mmHg is None else float(ens.afterload_mmHg[i])
-        ok = ens.ok[:, i]
-        kinds = ("static_sv", "dynamic_sv", "force", "work")
-        z = {k: rng.standard_normal((n_draws, NOISE_SAMPLES)) for k in kinds}
-        sd = {k: discrepancy_sd(card, k, float(rates[i]), head) for k in kinds}
-        v = {k: a[:, i, None] for k, a in ens.values.items()}
-        delta_sv = z["dynamic_sv"] * sd["dynamic_sv"] / ml  # the pump's SV and what follows
-        delta_work = z["work"] * sd["work"]
-        relative_sv = delta_sv / v["dynamic_sv_ml"]
-        sampled = {
-            "dynamic_sv_ml": v["dynamic_sv_ml"] + delta_sv,
-            "peak_force_N": v["peak_force_N"] + z["force"] * sd["force"],
-            "mech_work_J": v["mech_work_J"] + delta_work,
-            "efficiency": v["efficiency"] * (1 + relative_sv) / (1 + delta_work / v["mech_work_J"]),
-            "ef": v["ef"] * (1 + relative_sv),
-            "cardiac_output_l_min": v["cardiac_output_l_min"] * (1 + relative_sv),
-        }
-        if "static_sv_ml" in v:
-            sampled["static_sv_ml"] = v["static_sv_ml"] + z["static_sv"] * sd["static_sv"] / ml
-        bands = {}
-        for key, samples in sampled.items():
-            good = samples[ok]
-            plain = ens.values[key][ok, i]
-            if good.size == 0:
-                bands[key] = Band(math.nan, math.nan, math.nan, math.nan, int((~ok).sum()), 0)
-                continue
-            lo, hi = np.quantile(good, [lo_q, hi_q])
-            plo, phi = np.quantile(plain, [lo_q, hi_q])
-            bands[key] = Band(
-                float(lo), float(hi), float(plo), float(phi), int((~ok).sum()), int(ok.sum())
-            )
-        out.append(bands)
+    with np.errstate(invalid="ignore"):  # a failed draw's NaN: left out of its band
+        for i in range(n_members):
+            head = None if ens.afterload_mmHg is None else float(ens.afterload_mmHg[i])
+            ok = ens.ok[:, i]
+            kinds = ("static_sv", "dynamic_sv", "force", "work")
+            z = {k: rng.standard_normal((n_draws, NOISE_SAMPLES)) for k in kinds}
+            sd = {k: discrepancy_sd(card, k, float(rates[i]), head) for k in kinds}
+            v = {k: a[:, i, None] for k, a in ens.values.items()}
+            # the pump's SV and what follows from it; a stroke volume is not negative
+            sv = np.maximum(v["dynamic_sv_ml"] + z["dynamic_sv"] * sd["dynamic_sv"] / ml, 0.0)
+            relative_sv = sv / v["dynamic_sv_ml"]
+            work = v["mech_work_J"] + z["work"] * sd["work"]
+            esv = v["edv_ml"] - v["dynamic_sv_ml"]
+            sampled = {
+                "dynamic_sv_ml": sv,
+                "peak_force_N": v["peak_force_N"] + z["force"] * sd["force"],
+                "mech_work_J": work,
+                "efficiency": v["efficiency"] * relative_sv * v["mech_work_J"] / work,
+                # the SV's discrepancy taken in the filling (EDV), the folded ESV the pump's own:
+                # EF = SV / (SV + ESV) stays in [0, 1)
+                "ef": sv / (sv + esv),
+                "cardiac_output_l_min": v["cardiac_output_l_min"] * relative_sv,
+            }
+            if "static_sv_ml" in v:
+                sampled["static_sv_ml"] = v["static_sv_ml"] + z["static_sv"] * sd["static_sv"] / ml
+            bands = {}
+            for key, samples in sampled.items():
+                good = samples[ok]
+                plain = ens.values[key][ok, i]
+                if good.size == 0:
+                    bands[key] = Band(math.nan, math.nan, math.nan, math.nan, int((~ok).sum()), 0)
+                    continue
+                lo, hi = np.quantile(good, [lo_q, hi_q])
+                plo, phi = np.quantile(plain, [lo_q, hi_q])
+                bands[key] = Band(
+                    float(lo), float(hi), float(plo), float(phi), int((~ok).sum()), int(ok.sum())
+                )
+            out.append(bands)
     return out

@@ -35,11 +35,26 @@ def test_bands_leave_out_and_count_failed_draws():
     ok = np.array([[True, True], [False, False], [True, True]])
     values = {k: np.array([[1.0, 2.0], [np.nan, np.nan], [1.5, 2.5]]) for k in (
         "dynamic_sv_ml", "peak_force_N", "mech_work_J", "efficiency", "ef",
-        "cardiac_output_l_min")}
+        "cardiac_output_l_min", "edv_ml")}
     bands = predictive_bands(EnsembleRun(values, ok, 30.0, HEADS / mmHg, ["", ""]), CARD)
     assert [b["dynamic_sv_ml"].failed for b in bands] == [1, 1]
     assert [b["dynamic_sv_ml"].draws for b in bands] == [2, 2]
     assert all(math.isfinite(b["dynamic_sv_ml"].low) for b in bands)
+
+
+def test_ef_band_stays_below_one():
+    """EF takes the SV's discrepancy in the filling, SV / (SV + ESV) with the SV not below
+    zero: a pump that empties to a positive ESV keeps every sample in [0, 1) however large
+    the discrepancy (an SV's sd of 30 ml on 60 ml)."""
+    sv, edv = np.full((50, 1), 60.0), np.full((50, 1), 70.0)
+    values = {k: np.ones((50, 1)) for k in ("peak_force_N", "mech_work_J", "efficiency",
+                                           "cardiac_output_l_min")}
+    values |= {"dynamic_sv_ml": sv, "edv_ml": edv, "ef": sv / edv}
+    big = json.loads(json.dumps(CARD))
+    big["discrepancy"]["dynamic_sv"]["s0"] = 30e-6  # 30 ml
+    band = predictive_bands(EnsembleRun(values, np.ones((50, 1), bool), 30.0, None, [""]),
+                            big)[0]["ef"]
+    assert 0.0 <= band.low and band.high < 1.0
 
 
 def test_cut_laplace_is_the_linear_gaussian_cut_posterior():

@@ -4,6 +4,7 @@
     python -m fit.posterior            # Laplace posterior -> surrogates/<name>-posterior.npz/.json
     python -m fit.posterior --nuts     # NUTS on the EF block against it (--blocks)
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
+    python -m fit.posterior --sbc      # simulation-based calibration of the EF block
 
 - :mod:`fit.posterior.blocks`: the parameters (the fit's raw coordinates) and each block's
   whitened residuals, sigmas and priors;

@@ -3,6 +3,7 @@
     python -m fit.posterior            # compute and write surrogates/<name>-posterior.{npz,json}
     python -m fit.posterior --nuts     # NUTS on the EF block against the Laplace (--blocks)
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
+    python -m fit.posterior --sbc      # simulation-based calibration of the EF block
 
 Run from the repository root after ``python -m fit`` and ``python -m fit.bench`` (the bench
 scene's calibrated numbers are the bench block's centre). An existing posterior is not
@@ -184,6 +185,39 @@ def _check(args) -> int:
     return 0
 
 
+def _sbc(args) -> int:
+    from cardiosoft import datasets
+    from cardiosoft.pump import artifact_path, load, load_card, load_posterior
+    from cardiosoft.scene import load_scene
+    from fit import fitting
+    from fit.posterior import artifact, blocks, sbc
+
+    post = load_posterior(args.artifact)
+    npz, js = artifact.posterior_paths(artifact_path(args.artifact))
+    model, card = load(args.artifact), load_card(args.artifact)
+    layout = blocks.Layout(model, fitting.rig_from_card(card), load_scene(artifact.SCENE))
+    cols = layout.blocks["ef"]
+    with np.load(npz, allow_pickle=False) as f:
+        lap_ef = (f["natural_centre"][cols], f["transform"][cols, cols])
+    data = datasets.load_paper_data()
+    s0 = blocks.Sigmas(post.card["discrepancy"]["ef_volume"]["s0"]
+                       / float(model.unloaded_volume), 0.0, 0.0, 0.0, 0.0)
+    start = time.perf_counter()
+    result = sbc.run(layout, blocks.training_data(data), s0, lap_ef, data,
+                     replicates=args.replicates, seed=args.seed,
+                     progress=lambda m: print(m, file=sys.stderr, flush=True))
+    print(result.table())
+    _record(js, "sbc_ef", {
+        "replicates": args.replicates, "draws": sbc.DRAWS, "seed": args.seed,
+        "seconds": round(time.perf_counter() - start, 1), "failed_refits": result.failed,
+        "quantities": {n: {"p_uniform": float(result.p_values[i]),
+                           "coverage_95": float(result.coverage[i])}
+                       for i, n in enumerate(result.names)},
+    })
+    print(f"recorded in {js}")
+    return 0
+
+
 def main(argv=None) -> int:
     import jax
 
@@ -210,12 +244,17 @@ def main(argv=None) -> int:
                         help="with --nuts: time the mechanics+bench block's gradient and "
                         "estimate its NUTS run")
     parser.add_argument("--check", action="store_true", help="held-out checks of the bands")
+    parser.add_argument("--sbc", action="store_true",
+                        help="simulation-based calibration of the EF block (fit.posterior.sbc)")
+    parser.add_argument("--replicates", type=int, default=200, help="replicates for --sbc")
     args = parser.parse_args(argv)
     try:
         if args.nuts:
             return _nuts(args)
         if args.check:
             return _check(args)
+        if args.sbc:
+            return _sbc(args)
         if args.draws < 2:
             raise ValueError(f"--draws {args.draws}: at least 2")
         npz, _ = artifact.posterior_paths(artifact_path(args.artifact))
