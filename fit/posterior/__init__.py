@@ -12,8 +12,10 @@
   posterior's Gauss-Newton Laplace approximation;
 - :mod:`fit.posterior.artifact`: computing it from the shipped fit and writing the draws;
 - :mod:`fit.posterior.nuts`: the NUTS check (NumPyro, forward mode; ArviZ diagnostics);
-- :mod:`fit.posterior.check`: the held-out checks.
+- :mod:`fit.posterior.check`: the held-out checks (Table II, the 30-bpm bench, one afterload
+  left out at a time);
+- :mod:`fit.posterior.sbc`: simulation-based calibration of the EF block.
 
 The draws are carried through the solve by :func:`cardiosoft.pump.load_posterior` and
-:mod:`cardiosoft.posterior`.
+:mod:`cardiosoft.posterior`; :mod:`cardiosoft.explain` says what dominates a band.
 """

@@ -211,6 +211,8 @@ def _sbc(args) -> int:
         "replicates": args.replicates, "draws": sbc.DRAWS, "seed": args.seed,
         "seconds": round(time.perf_counter() - start, 1), "failed_refits": result.failed,
         "quantities": {n: {"p_uniform": float(result.p_values[i]),
+                           "mean_rank": float(result.mean_rank[i]),
+                           "coverage_50": float(result.coverage_50[i]),
                            "coverage_95": float(result.coverage[i])}
                        for i, n in enumerate(result.names)},
     })

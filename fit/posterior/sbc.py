@@ -50,6 +50,18 @@ class SbcResult(NamedTuple):
     coverage: np.ndarray
     failed: int
 
+    @property
+    def mean_rank(self) -> np.ndarray:
+        """The truth's mean rank over the replicates, as a fraction of the draws (0.5 when
+        unbiased; above: the posterior sits below the truth)."""
+        return self.ranks.mean(axis=0) / (DRAWS + 1)
+
+    @property
+    def coverage_50(self) -> np.ndarray:
+        """How often the truth falls in the central 50 % (above 0.5: too wide; below: too
+        narrow)."""
+        return np.mean((self.ranks >= 25) & (self.ranks < 75), axis=0)
+
     def table(self) -> str:
         from fit.posterior.check import wilson
 
@@ -57,13 +69,16 @@ class SbcResult(NamedTuple):
         lines = [
             f"simulation-based calibration of the EF block: {n} replicates, {DRAWS} draws each "
             f"({self.failed} refits failed and were redrawn)",
-            f"  {'quantity':28s} {'p (uniform ranks)':>18s} {'95 % coverage':>14s}  Wilson 95 %",
+            f"  {'quantity':28s} {'p (uniform)':>11s} {'mean rank':>9s} {'50 % cov.':>9s} "
+            f"{'95 % cov.':>9s}  Wilson 95 %",
         ]
         for i, name in enumerate(self.names):
             k = round(float(self.coverage[i]) * n)
             lo, hi = wilson(k, n)
-            lines.append(f"  {name:28s} {self.p_values[i]:18.3f} {self.coverage[i]:14.2f}  "
-                         f"{lo:.2f}-{hi:.2f}")
+            lines.append(
+                f"  {name:28s} {self.p_values[i]:11.3f} {self.mean_rank[i]:9.2f} "
+                f"{self.coverage_50[i]:9.2f} {self.coverage[i]:9.2f}  {lo:.2f}-{hi:.2f}"
+            )
         return "\n".join(lines)
 
 
