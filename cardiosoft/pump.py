@@ -472,6 +472,21 @@ def artifact_path(path=None) -> Path:
     return path if path.suffix == ".eqx" else path.with_suffix(".eqx")
 
 
+def _checked_card(card_path: Path, data_path: Path, version: int, what: str) -> dict:
+    """The JSON card at ``card_path``, once it and ``data_path`` exist and its format version
+    is ``version`` (``FileNotFoundError``, ``ValueError`` otherwise)."""
+    for p in (data_path, card_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"{what} file {p} not found")
+    card = json.loads(card_path.read_text())
+    if card.get("format_version") != version:
+        raise ValueError(
+            f"{card_path}: format_version {card.get('format_version')!r} is not supported "
+            f"(this cardiosoft reads {version})"
+        )
+    return card
+
+
 def load(path=None) -> PumpSurrogate:
     """Load a fitted :class:`PumpSurrogate`: the shipped default, or the artifact at ``path``.
 
@@ -479,16 +494,7 @@ def load(path=None) -> PumpSurrogate:
     card's format version and the weights' sha256 are checked; nothing is ever unpickled.
     """
     weights = artifact_path(path)
-    card_path = weights.with_suffix(".json")
-    for p in (weights, card_path):
-        if not p.is_file():
-            raise FileNotFoundError(f"surrogate file {p} not found")
-    card = json.loads(card_path.read_text())
-    if card.get("format_version") != FORMAT_VERSION:
-        raise ValueError(
-            f"{card_path}: format_version {card.get('format_version')!r} is not supported "
-            f"(this cardiosoft reads {FORMAT_VERSION})"
-        )
+    card = _checked_card(weights.with_suffix(".json"), weights, FORMAT_VERSION, "surrogate")
     digest = sha256(weights)
     if digest != card.get("weights_sha256"):
         raise ValueError(
@@ -545,15 +551,7 @@ def load_posterior(path=None) -> PosteriorDraws:
             "compute one with python -m fit.posterior"
         )
     draws_path, card_path = weights.parent / entry["file"], weights.parent / entry["card"]
-    for p in (draws_path, card_path):
-        if not p.is_file():
-            raise FileNotFoundError(f"posterior file {p} not found")
-    posterior = json.loads(card_path.read_text())
-    if posterior.get("format_version") != POSTERIOR_FORMAT_VERSION:
-        raise ValueError(
-            f"{card_path}: format_version {posterior.get('format_version')!r} is not supported "
-            f"(this cardiosoft reads {POSTERIOR_FORMAT_VERSION})"
-        )
+    posterior = _checked_card(card_path, draws_path, POSTERIOR_FORMAT_VERSION, "posterior")
     digest = sha256(draws_path)
     if not digest == entry["sha256"] == posterior.get("sha256"):
         raise ValueError(

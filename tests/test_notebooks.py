@@ -15,7 +15,8 @@ the fresh copy asks the kernel). Then:
   stored line;
 - a few key numbers, read from the kernel by the probe, against a source independent of the
   notebook: the paper's anchors, the surrogate's model card, the paper's static SV +- SD, the
-  acceptance of ``--verify``.
+  acceptance of ``--verify``, the paper's Table II and the posterior card's record of its
+  coverage, a fresh plain solve of the bench at 60 bpm.
 """
 
 from __future__ import annotations
@@ -43,9 +44,9 @@ _spec.loader.exec_module(nbexec)
 NOTEBOOKS = nbexec.notebooks()
 SMOKE = {"accuracy"}
 """Executed with ``CARDIOSOFT_NOTEBOOK_SMOKE=1``: a subset of the stored computation."""
-SLOW = {"tables_fit", "fig10_bench", "accuracy", "design", "closed_loop"}
-"""~40 s, ~40 s, ~2.5 min, ~5 min and ~5 min on 2 CPU cores; tables_fit's numbers (Table I/II
-errors) are also pinned by tests/test_fit.py against the model card."""
+SLOW = {"tables_fit", "fig10_bench", "accuracy", "design", "closed_loop", "uncertainty"}
+"""~40 s, ~40 s, ~2.5 min, ~5 min, ~5 min and ~2.5 min on 2 CPU cores; tables_fit's numbers
+(Table I/II errors) are also pinned by tests/test_fit.py against the model card."""
 PROBES = {
     "fig7_apex_motion": ("anchor_dz_mm", "anchor_dalpha_deg", "cavity_ml"),
     "tables_fit": ("mae_table1_ml", "mae_table2_ml", "folds_wrong", "folds_right"),
@@ -53,6 +54,13 @@ PROBES = {
     "accuracy": ("ratios", "scenes_studied"),
     "design": ("backwards_sv_ml", "sv70_ml", "lv_reached", "lv_max_sv"),
     "closed_loop": ("native_record", "asked", "tah_fixed", "tah_free"),
+    "uncertainty": (
+        "table2_observed_ml",
+        "table2_band_ml",
+        "table2_inside",
+        "best_sv_ml",
+        "sv_band_ml",
+    ),
 }
 """The notebook's variables the probe reads back (JSON) for its check; it always reads x64."""
 
@@ -158,6 +166,26 @@ def check_closed_loop(v: dict) -> None:
     assert free["design"]["bpm"] > 72.0 and free["co_seen"][1] > fixed["co_seen"][1]
 
 
+def check_uncertainty(v: dict) -> None:
+    from cardiosoft.datasets import load_paper_data
+    from cardiosoft.pump import load, load_posterior
+
+    # Table II's contracted volumes are the paper's: V_u (1 - EF) of its experiments
+    t2 = load_paper_data().table2_experiment
+    vu_ml = float(load().unloaded_volume) / ml
+    paper = [vu_ml * (1 - ef / 100) for ef in t2["ef_percent"]]
+    assert v["table2_observed_ml"] == pytest.approx(paper, rel=1e-12)
+    # the count inside is the bands' (recounted here) and what fit.posterior --check recorded
+    inside = sum(lo <= y <= hi for y, (lo, hi) in zip(paper, v["table2_band_ml"], strict=True))
+    assert v["table2_inside"] == inside
+    assert v["table2_inside"] == load_posterior().card["checks"]["table2"]["inside"]
+    # the best estimate at 60 bpm is a fresh plain run of the bench; the bands are ordered
+    plain = cs.solve_beats(cs.load_scene("bench-dynamic").replace(bpm=60), save="metrics")
+    fresh = [float(x) / ml for x in plain.metrics.stroke_volume]
+    assert v["best_sv_ml"] == pytest.approx(fresh, rel=1e-6)
+    assert all(lo < hi for lo, hi in v["sv_band_ml"]), v["sv_band_ml"]
+
+
 CHECKS = {
     "fig7_apex_motion": check_fig7,
     "tables_fit": check_tables,
@@ -165,6 +193,7 @@ CHECKS = {
     "accuracy": check_accuracy,
     "design": check_design,
     "closed_loop": check_closed_loop,
+    "uncertainty": check_uncertainty,
 }
 
 

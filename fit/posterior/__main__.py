@@ -137,6 +137,12 @@ def _nuts(args) -> int:
     return 0 if all(r.get("passed", True) for r in record.values()) else 1
 
 
+def _print_bench(check, bench, sv_title: str, force_title: str) -> None:
+    print(check.format_coverage(sv_title, "ml", bench.dynamic_sv))
+    print(check.format_coverage(force_title, "N", bench.peak_force))
+    print(f"  draws that failed or missed the steady state: {bench.failed}")
+
+
 def _check(args) -> int:
     from cardiosoft import datasets
     from cardiosoft.pump import artifact_path, load_card, load_posterior
@@ -153,23 +159,17 @@ def _check(args) -> int:
     ))
     print()
     b = check.bench(post, data, seed=args.seed)
-    print(check.format_coverage(
-        "30-bpm bench: dynamic SV [ml] (fitted) against the 95 % band (draws, discrepancy, "
-        "the paper's sd)", "ml", b.dynamic_sv))
-    print(check.format_coverage(
-        "30-bpm bench: peak force [N] (not fitted) against the 95 % band", "N", b.peak_force))
-    print(f"  draws that failed or missed the steady state: {b.failed}")
+    _print_bench(check, b, "30-bpm bench: dynamic SV [ml] (fitted) against the 95 % band "
+                 "(draws, discrepancy, the paper's sd)",
+                 "30-bpm bench: peak force [N] (not fitted) against the 95 % band")
     print()
     fit = artifact.linearised_fit(args.artifact, progress=lambda m: print(m, file=sys.stderr))
     loao = check.leave_one_afterload_out(
         fit, seed=args.seed, progress=lambda m: print(m, file=sys.stderr, flush=True)
     )
-    print(check.format_coverage(
-        "leave one afterload out: the left-out dynamic SV [ml] against the band of the "
-        "posterior without its four rows", "ml", loao.dynamic_sv))
-    print(check.format_coverage(
-        "leave one afterload out: the left-out peak force [N]", "N", loao.peak_force))
-    print(f"  draws that failed or missed the steady state: {loao.failed}")
+    _print_bench(check, loao, "leave one afterload out: the left-out dynamic SV [ml] against "
+                 "the band of the posterior without its four rows",
+                 "leave one afterload out: the left-out peak force [N]")
     _, js = artifact.posterior_paths(artifact_path(args.artifact))
     _record(js, "checks", {
         "seed": args.seed,
