@@ -33,7 +33,7 @@ import numpy as np
 
 from cardiosoft.units import ml, mm, mmHg
 
-__all__ = ["CANDIDATES", "Explanation", "explain", "raw_covariance", "rebuild"]
+__all__ = ["CANDIDATES", "Explanation", "explain", "predictions", "raw_covariance", "rebuild"]
 
 BENCH_FIELDS = {
     "bench.log_tube_length": "tube_length",
@@ -147,8 +147,10 @@ def _matching(scene, centre: dict) -> set:
     }
 
 
-def _solve_metrics(scene, pump0, names, centre_values):
-    """theta -> the scene's metrics per member (SV ml, peak force N, efficiency, CO l/min)."""
+def predictions(scene, pump0, names, centre_values):
+    """``theta -> (4, M)``: the scene's SV (ml), peak force (N), efficiency and cardiac output
+    (l/min) per member, for raw parameters ``theta`` (:func:`rebuild`); the rig's numbers take
+    theta's values where ``scene`` holds the calibrated ones (``centre_values``, SI)."""
     from cardiosoft.batch import solve_beats
 
     shared = _matching(scene, centre_values)
@@ -179,7 +181,7 @@ def explain(scene, posterior, progress=print) -> Explanation:
     cov = raw_covariance(arrays)
     pump0 = load()
     progress("explain: d prediction / d theta (jax.jacfwd through the batched solve) ...")
-    predict = _solve_metrics(scene, pump0, names, posterior.scene_centre)
+    predict = predictions(scene, pump0, names, posterior.scene_centre)
     values, jac = jax.jit(lambda t: (predict(t), jax.jacfwd(predict)(t)))(theta)
     values, jac = np.asarray(values), np.asarray(jac)  # (4, M), (4, M, p)
     kinds = ["SV [ml]", "peak force [N]", "efficiency", "CO [l/min]"]
@@ -201,8 +203,8 @@ def explain(scene, posterior, progress=print) -> Explanation:
         bpm=MEASURE_BPM, afterloads=(MEASURE_HEAD_MMHG * mmHg,)
     )
     b_values, b_jac = jax.jit(
-        lambda t: (_solve_metrics(bench, pump0, names, posterior.scene_centre)(t),
-                   jax.jacfwd(_solve_metrics(bench, pump0, names, posterior.scene_centre))(t))
+        lambda t: (predictions(bench, pump0, names, posterior.scene_centre)(t),
+                   jax.jacfwd(predictions(bench, pump0, names, posterior.scene_centre))(t))
     )(theta)
 
     def shell_volume(t):

@@ -5,6 +5,7 @@
     python -m fit.posterior --nuts     # NUTS on the EF block against it (--blocks)
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
     python -m fit.posterior --sbc      # simulation-based calibration of the EF block
+    python -m fit.posterior --sobol    # Sobol indices (SALib) against the linearised shares
 
 - :mod:`fit.posterior.blocks`: the parameters (the fit's raw coordinates) and each block's
   whitened residuals, sigmas and priors;
@@ -14,7 +15,8 @@
 - :mod:`fit.posterior.nuts`: the NUTS check (NumPyro, forward mode; ArviZ diagnostics);
 - :mod:`fit.posterior.check`: the held-out checks (Table II, the 30-bpm bench, one afterload
   left out at a time);
-- :mod:`fit.posterior.sbc`: simulation-based calibration of the EF block.
+- :mod:`fit.posterior.sbc`: simulation-based calibration of the EF block;
+- :mod:`fit.posterior.sobol`: Sobol indices against the linearised variance shares.
 
 The draws are carried through the solve by :func:`cardiosoft.pump.load_posterior` and
 :mod:`cardiosoft.posterior`; :mod:`cardiosoft.explain` says what dominates a band.

@@ -4,6 +4,7 @@
     python -m fit.posterior --nuts     # NUTS on the EF block against the Laplace (--blocks)
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
     python -m fit.posterior --sbc      # simulation-based calibration of the EF block
+    python -m fit.posterior --sobol    # Sobol indices (SALib) against the linearised shares
 
 Run from the repository root after ``python -m fit`` and ``python -m fit.bench`` (the bench
 scene's calibrated numbers are the bench block's centre). An existing posterior is not
@@ -220,6 +221,26 @@ def _sbc(args) -> int:
     return 0
 
 
+def _sobol(args) -> int:
+    from cardiosoft.pump import artifact_path, load, load_card, load_posterior
+    from cardiosoft.scene import load_scene
+    from fit import fitting
+    from fit.posterior import artifact, blocks, sobol
+
+    post = load_posterior(args.artifact)
+    npz, js = artifact.posterior_paths(artifact_path(args.artifact))
+    layout = blocks.Layout(load(args.artifact), fitting.rig_from_card(load_card(args.artifact)),
+                           load_scene(artifact.SCENE))
+    with np.load(npz, allow_pickle=False) as f:
+        arrays = {k: f[k] for k in ("centre", "transform", "positive")}
+    result = sobol.run(layout, arrays, post, base_samples=args.base_samples, seed=args.seed,
+                       progress=lambda m: print(m, file=sys.stderr, flush=True))
+    print(result.table())
+    _record(js, "sobol", result.record())
+    print(f"recorded in {js}")
+    return 0
+
+
 def main(argv=None) -> int:
     import jax
 
@@ -249,6 +270,11 @@ def main(argv=None) -> int:
     parser.add_argument("--sbc", action="store_true",
                         help="simulation-based calibration of the EF block (fit.posterior.sbc)")
     parser.add_argument("--replicates", type=int, default=200, help="replicates for --sbc")
+    parser.add_argument("--sobol", action="store_true",
+                        help="Sobol indices (SALib) of the 60-bpm bench against the linearised "
+                        "shares of --explain (fit.posterior.sobol)")
+    parser.add_argument("--base-samples", type=int, default=128,
+                        help="Saltelli base samples N for --sobol (N (d + 2) solves)")
     args = parser.parse_args(argv)
     try:
         if args.nuts:
@@ -257,6 +283,8 @@ def main(argv=None) -> int:
             return _check(args)
         if args.sbc:
             return _sbc(args)
+        if args.sobol:
+            return _sobol(args)
         if args.draws < 2:
             raise ValueError(f"--draws {args.draws}: at least 2")
         npz, _ = artifact.posterior_paths(artifact_path(args.artifact))
