@@ -106,7 +106,7 @@ class Explanation(NamedTuple):
                  "its variance removed by knowing the parameter):"]
         for k, label in enumerate(self.labels):
             order = np.argsort(self.shares[k])[::-1][:top]
-            parts = ", ".join(f"{self.names[i]} {self.shares[k, i]:.0%}" for i in order)
+            parts = ", ".join(f"{self.names[i]} {100 * self.shares[k, i]:.1f} %" for i in order)
             lines.append(f"  {label:38s} sd {self.sd[k]:.3g}: {parts}")
         lines.append("sd after one more measurement (" + "; ".join(
             f"{c}: {why}" for c, why in self.candidates.items()) + "):")

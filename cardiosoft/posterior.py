@@ -30,8 +30,9 @@ and work (an SV sample below zero is zero); the pump's SV (the paper's dynamic S
 bench), the efficiency, EF and output share one SV discrepancy per sample, the static SV has
 its own.
 
-A draw whose solve fails or misses the steady state is left out of the band and counted
-(``Band.failed``); nothing is dropped silently.
+A draw whose solve fails or misses the steady state, or whose pump empties below zero volume
+(ESV < 0: its surrogate extrapolated to a stroke no pump delivers), is left out of the band and
+counted (``Band.failed``); nothing is dropped silently.
 """
 
 from __future__ import annotations
@@ -178,7 +179,11 @@ def ensemble_run(
         steady=steady, config=config, bpm=bpm, **members,
     )
     m = out.metrics
-    ok = np.asarray(out.succeeded) & (np.asarray(out.steady) | (beats is not None))
+    solved = np.asarray(out.succeeded) & (np.asarray(out.steady) | (beats is not None))
+    # a draw whose pump empties below zero volume delivers a stroke no pump can: outside the
+    # model (its surrogate extrapolates to V < 0), not a number to put in a band
+    esv_ml = np.asarray(m.esv) / ml
+    ok = solved & ~(esv_ml < 0.0)
     values = {
         "dynamic_sv_ml": np.asarray(m.stroke_volume) / ml,
         "peak_force_N": np.asarray(m.peak_force),
@@ -196,7 +201,13 @@ def ensemble_run(
     messages = []
     for i in range(ok.shape[1]):
         bad = np.flatnonzero(~ok[:, i])
-        messages.append(out.message((int(bad[0]), i)) if bad.size else "")
+        if not bad.size:
+            messages.append("")
+        elif solved[bad[0], i]:
+            messages.append(f"the pump's volume falls to {esv_ml[bad[0], i]:.1f} ml, below zero: "
+                            "the draw is outside the model")
+        else:
+            messages.append(out.message((int(bad[0]), i)))
     return EnsembleRun(values, ok, np.asarray(out.members["bpm"], float), heads, messages)
 
 

@@ -369,8 +369,9 @@ def _uncertainty(args, scene, records, console, posterior) -> dict:
         if n_failed:
             console.flag(
                 record["label"],
-                f"{n_failed} of {ens.ok.shape[0]} posterior draws failed or missed the steady "
-                f"state and are left out of its bands (the first: {message})",
+                f"{n_failed} of {ens.ok.shape[0]} posterior draws failed, missed the steady "
+                f"state or emptied the pump below zero volume, and are left out of its bands "
+                f"(the first: {message})",
             )
     console.say(f"done in {time.perf_counter() - start:.1f} s")
     return {

@@ -418,8 +418,9 @@ def _uncertainty(scene, result, posterior, robust: bool, text, console):
     found = robust_design(scene, result, posterior, console.say) if robust else None
     for t, b in zip(result.targets, bands, strict=True):
         if b.failed:
-            console.flag(t.where, f"{b.failed} of {b.failed + b.draws} posterior draws failed "
-                         "or missed the steady state and are left out of the SV's band")
+            console.flag(t.where, f"{b.failed} of {b.failed + b.draws} posterior draws failed, "
+                         "missed the steady state or emptied the pump below zero volume, and are "
+                         "left out of the SV's band")
     if found is not None and not found.within:
         console.flag("robust design", found.reason)
     record = {

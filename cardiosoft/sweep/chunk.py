@@ -102,8 +102,8 @@ BAND_VARIABLES = {
 }
 """With ``uncertainty``: the metrics that get ``<name>_band_low`` and ``<name>_band_high`` (the
 95 % predictive band, :func:`cardiosoft.posterior.predictive_bands`' key beside), and the
-variable ``band_failed_draws`` (posterior draws that failed or missed the steady state at the
-point and are left out of its bands)."""
+variable ``band_failed_draws`` (posterior draws that failed, missed the steady state or emptied
+the pump below zero volume at the point, left out of its bands)."""
 
 
 def band_names() -> list[str]:

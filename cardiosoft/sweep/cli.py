@@ -211,9 +211,9 @@ def report_points(console: Console, ds, fixed_beats: bool) -> None:
         if failed.sum():
             console.flag(
                 "",
-                f"{int((failed > 0).sum())} of {total} points have posterior draws that failed "
-                f"or missed the steady state ({int(failed.sum())} in all), left out of their "
-                "bands ('band_failed_draws' in the Dataset)",
+                f"{int((failed > 0).sum())} of {total} points have posterior draws that failed, "
+                f"missed the steady state or emptied the pump ({int(failed.sum())} in all), left "
+                "out of their bands ('band_failed_draws' in the Dataset)",
             )
     flagged = int(np.asarray(ds["flagged"]).sum())
     if flagged:

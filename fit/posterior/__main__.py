@@ -141,7 +141,7 @@ def _nuts(args) -> int:
 def _print_bench(check, bench, sv_title: str, force_title: str) -> None:
     print(check.format_coverage(sv_title, "ml", bench.dynamic_sv))
     print(check.format_coverage(force_title, "N", bench.peak_force))
-    print(f"  draws that failed or missed the steady state: {bench.failed}")
+    print(f"  draws that failed, missed the steady state or emptied the pump: {bench.failed}")
 
 
 def _check(args) -> int:
