@@ -182,7 +182,8 @@ def explain(scene, posterior, progress=print) -> Explanation:
     pump0 = load()
     progress("explain: d prediction / d theta (jax.jacfwd through the batched solve) ...")
     predict = predictions(scene, pump0, names, posterior.scene_centre)
-    values, jac = jax.jit(lambda t: (predict(t), jax.jacfwd(predict)(t)))(theta)
+    # one forward-mode pass gives the values beside the Jacobian (aux): no second solve
+    jac, values = jax.jit(jax.jacfwd(lambda t: (y := predict(t), y), has_aux=True))(theta)
     values, jac = np.asarray(values), np.asarray(jac)  # (4, M), (4, M, p)
     kinds = ["SV [ml]", "peak force [N]", "efficiency", "CO [l/min]"]
     heads = scene.afterloads if scene.afterload.has_heads else [None]
@@ -202,10 +203,7 @@ def explain(scene, posterior, progress=print) -> Explanation:
     bench = load_scene("bench-dynamic").replace(
         bpm=MEASURE_BPM, afterloads=(MEASURE_HEAD_MMHG * mmHg,)
     )
-    b_values, b_jac = jax.jit(
-        lambda t: (predictions(bench, pump0, names, posterior.scene_centre)(t),
-                   jax.jacfwd(predictions(bench, pump0, names, posterior.scene_centre))(t))
-    )(theta)
+    b_jac = jax.jit(jax.jacfwd(predictions(bench, pump0, names, posterior.scene_centre)))(theta)
 
     def shell_volume(t):
         pump, _ = rebuild(pump0, names, t)
@@ -232,7 +230,6 @@ def explain(scene, posterior, progress=print) -> Explanation:
         f"+- {SHELL_VOLUME_SD_ML} ml",
         "force at 60 bpm": f"+- {force_sd:.1f} N (3 N and the discrepancy at 60 bpm)",
     }
-    del b_values
     variance, shares = variance_shares(g, cov)
     after = {c: sd_after(g, cov, h, sd) for c, (h, sd) in measurements.items()}
     return Explanation(names, labels, np.array(vals), np.sqrt(variance), shares, after, why)
