@@ -180,7 +180,9 @@ def _heading(scene) -> str:
     return ", ".join([f"{scene.name} (closed loop) at {scene.bpm:g} bpm", *pumps])
 
 
-def _table(records, scene, paper) -> str:
+def _table(records, scene, paper, *, bands: bool = False) -> str:
+    """The run's table; with ``bands``, only the metrics with a ``<key>_band`` (and the member
+    column), each cell the best estimate and its band ``[low, high]``."""
     from cardiosoft._cli import fmt, table
 
     if _is_loop(scene):
@@ -188,9 +190,18 @@ def _table(records, scene, paper) -> str:
 
         return loop_table(records)
     columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
+    if bands:
+        member = ("afterload_mmHg", "label")
+        columns = [c for c in columns if c[2] in member or f"{c[2]}_band" in records[0]]
+
+    def cell(r, key, spec):
+        band = r.get(f"{key}_band") if bands else None
+        text = fmt(r.get(key), spec)
+        return text if band is None else f"{text} [{fmt(band[0], spec)}, {fmt(band[1], spec)}]"
+
     rows = []
     for r in records:
-        rows.append([fmt(r.get(key), spec) for _, _, key, spec in columns])
+        rows.append([cell(r, key, spec) for _, _, key, spec in columns])
         if paper is not None and r.get("afterload_mmHg") in paper:
             p = {**paper[r["afterload_mmHg"]], "afterload_mmHg": None}
             rows.append(["  paper", *[fmt(p.get(key), spec) for _, _, key, spec in columns[1:]]])
@@ -324,27 +335,6 @@ def _print_table(result, records, compare_paper: bool) -> None:
     print(_table(records, result.scene, paper))
 
 
-def _band_table(records, scene) -> str:
-    """Each metric as its best estimate and 95 % predictive band ``[low, high]``."""
-    from cardiosoft._cli import fmt, table
-
-    columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
-    columns = [
-        c for c in columns if c[2] in ("afterload_mmHg", "label") or f"{c[2]}_band" in records[0]
-    ]
-    rows = []
-    for r in records:
-        row = []
-        for _, _, key, spec in columns:
-            band = r.get(f"{key}_band")
-            cell = fmt(r.get(key), spec)
-            if band is not None:
-                cell += f" [{fmt(band[0], spec)}, {fmt(band[1], spec)}]"
-            row.append(cell)
-        rows.append(row)
-    return table([c[0] for c in columns], [c[1] for c in columns], rows)
-
-
 def _uncertainty(args, scene, records, console, posterior) -> dict:
     """Solve the posterior's draws, add ``<metric>_band`` (and ``<metric>_band_parameters``,
     the draws alone) to each record, flag failed draws; returns summary.json's
@@ -441,7 +431,7 @@ def main(argv=None, prog: str | None = None) -> int:
                 f"95 % predictive bands ({uncertainty['draws']} posterior draws plus the model "
                 "discrepancy; --out: summary.json has the draws' own bands too)"
             )
-            print(_band_table(records, result.scene))
+            print(_table(records, result.scene, None, bands=True))
     if args.explain:
         from cardiosoft.explain import explain
 
