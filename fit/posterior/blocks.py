@@ -50,6 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
+from cardiosoft.explain import BENCH_FIELDS
 from cardiosoft.units import mm, mmHg
 from fit import pipeline
 
@@ -58,14 +59,10 @@ MECHANICS = (*pipeline.MECHANICS_FIELDS, "fold_compliance")
 """The surrogate's parameters in the mechanics block: the fitted ones and the held kappa."""
 RIG = ("log_column_diameter", *pipeline.RIG_FIELDS)
 """The rig's parameters in the mechanics block: the held column diameter and the fitted ones."""
-BENCH_NAMES = (
-    "bench.log_tube_length",
-    "bench.log_tube_diameter",
-    "bench.log_stiffness_ratio",
-    "bench.log_relaxation_time",
-)
-"""The bench calibration's four, as logs of SI values (``fit.bench.NAMES`` in m, -, s)."""
-BENCH_SCENE_FIELDS = ("tube_length", "tube_diameter", "viscoelastic_ratio", "relaxation_time")
+BENCH_NAMES = tuple(BENCH_FIELDS)
+"""The bench calibration's four, as logs of SI values (``fit.bench.NAMES`` in m, -, s); one
+mapping to the scene's fields with :mod:`cardiosoft.explain`, which rebuilds the draws."""
+BENCH_SCENE_FIELDS = tuple(BENCH_FIELDS.values())
 FEM_ROUNDING = 0.001 / np.sqrt(12.0)
 """Table I prints EF to 0.1 %: a uniform rounding error of sd 0.1 % / sqrt(12) (fraction)."""
 EFFICIENCY_ROUNDING = 0.0005

@@ -70,12 +70,19 @@ def loo_errors(e, rows, sd, jac_phys, other_r, other_j):
     w = 1.0 / np.asarray(sd)
     jac = np.concatenate([jac_phys * w[:, None], other_j])
     r = np.concatenate([np.asarray(e) * w, other_r])
+    return _left_out_errors(e, jac_phys, r, jac, rows)
+
+
+def _left_out_errors(e, jac_e, r, jac, rows):
+    """``e[i] + jac_e[i] @ step_i`` for each i in ``rows``: ``step_i`` the Gauss-Newton step of
+    the whitened residuals ``r`` (Jacobian ``jac``) without row i, i.e. the linearised refit
+    with that row left out, and ``e``, ``jac_e`` the left-out quantity and its Jacobian."""
     h, g = jac.T @ jac, jac.T @ r
     out = np.empty(len(rows))
     for k, i in enumerate(rows):
         ji = jac[i]
         step = -np.linalg.solve(h - np.outer(ji, ji), g - ji * r[i])
-        out[k] = e[i] + jac_phys[i] @ step
+        out[k] = e[i] + jac_e[i] @ step
     return out
 
 
@@ -105,12 +112,7 @@ def size_ef(layout: Layout, d: blocks.Data, theta):
     r, jac = jacobian(residual, theta, cols)
     model, jac_ef = jacobian(ef, theta, cols)
     e = model - d.t.t1_ef
-    h, g = jac.T @ jac, jac.T @ r
-    errors = np.empty(len(e))
-    for i in range(len(e)):
-        ji = jac[i]
-        step = -np.linalg.solve(h - np.outer(ji, ji), g - ji * r[i])
-        errors[i] = e[i] + jac_ef[i] @ step
+    errors = _left_out_errors(e, jac_ef, r, jac, range(len(e)))
     return _s0(errors, [blocks.FEM_ROUNDING**2]), errors
 
 
