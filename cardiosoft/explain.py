@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cardiosoft.pump import centred_omega
 from cardiosoft.units import ml, mm, mmHg
 
 __all__ = ["CANDIDATES", "Explanation", "explain", "predictions", "raw_covariance", "rebuild"]
@@ -54,13 +55,18 @@ MEASURE_BPM, MEASURE_HEAD_MMHG = 60.0, 60.0
 def rebuild(pump, names, theta):
     """The pump and the scene numbers (SI) of raw parameters ``theta`` (names as the posterior's
     ``names``: pump fields ``f`` or ``f[i]``, ``log_column_diameter``, ``raw_cable_friction``,
-    ``bench.*``; ``log_fem_pressure`` sets nothing a solve uses). The inverse of
+    ``bench.*``, ``f(Omega o)`` for a rate ``softplus(f[0] + f[1] w)`` given by its argument at
+    two Omegas; ``log_fem_pressure`` sets nothing a solve uses). The inverse of
     ``fit.posterior.blocks.Layout``'s flattening, written here because ``fit`` is not installed
     with the package."""
     leaves: dict[str, dict[int | None, jax.Array]] = {}
+    at_omega: dict[str, dict[float, jax.Array]] = {}
     scene = {}
     for i, name in enumerate(names):
-        if name in BENCH_FIELDS:
+        by_omega = re.fullmatch(r"(\w+)\(Omega ([\d.]+)\)", name)
+        if by_omega:  # a rate softplus(p0 + p1 w(Omega)) as its argument at two Omegas
+            at_omega.setdefault(by_omega.group(1), {})[float(by_omega.group(2))] = theta[i]
+        elif name in BENCH_FIELDS:
             scene[BENCH_FIELDS[name]] = jnp.exp(theta[i])
         elif name == "log_column_diameter":
             scene["column_diameter"] = jnp.exp(theta[i])
@@ -70,6 +76,11 @@ def rebuild(pump, names, theta):
             m = re.fullmatch(r"(\w+)(?:\[(\d+)\])?", name)
             field, index = m.group(1), m.group(2)
             leaves.setdefault(field, {})[None if index is None else int(index)] = theta[i]
+    for field, parts in at_omega.items():
+        (o0, q0), (o1, q1) = sorted(parts.items())
+        w0, w1 = centred_omega(o0), centred_omega(o1)
+        slope = (q1 - q0) / (w1 - w0)
+        leaves[field] = {0: q0 - w0 * slope, 1: slope}
     values = []
     for parts in leaves.values():
         if None in parts:

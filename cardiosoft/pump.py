@@ -135,6 +135,12 @@ def _elementwise_derivative(fn, V):
     return jax.jvp(fn, (V,), (jnp.ones_like(V),))[1]
 
 
+def centred_omega(omega):
+    """(Omega - 3) / 2: the helix parameter centred on the fitted range, which keeps the EF
+    law's raw parameters O(1)."""
+    return (omega - 3.0) / 2.0
+
+
 def _softplus(z):
     return jax.nn.softplus(z)
 
@@ -278,7 +284,7 @@ class PumpSurrogate(eqx.Module):
         """(h_0, f): ``-log(V_eq / V_u)`` split into what shortening alone takes (h_0, the
         terms in a and b) and what the folds take (f, the buckling step or the three-fold
         depth); EF_0 = 1 - exp(-(h_0 + f)) for a chamber that is not swollen."""
-        w = (omega - 3.0) / 2.0  # centred Omega keeps the raw parameters O(1)
+        w = centred_omega(omega)
         helix = jnp.tanh(omega / HELIX_SWITCH)
         a = _softplus(self.ef_linear[0]) + _softplus(self.ef_linear[1]) * helix
         b = _softplus(self.ef_quadratic[0] + self.ef_quadratic[1] * w)

@@ -48,6 +48,8 @@ def test_rebuild_at_the_centre_is_the_shipped_pump_and_bench():
     shipped = load()
     for field in ("ef_linear", "log_stiffness", "fold_compliance", "log_chamber_elastance"):
         np.testing.assert_array_equal(getattr(pump, field), getattr(shipped, field))
+    # the quadratic rate comes back from its arguments at two Omegas: a 2x2 solve, to round-off
+    np.testing.assert_allclose(pump.ef_quadratic, shipped.ef_quadratic, rtol=1e-12, atol=1e-14)
     scene = load_scene("bench-dynamic")
     for field, value in values.items():
         assert float(value) == pytest.approx(float(getattr(scene, field)), rel=1e-3), field

@@ -1,7 +1,8 @@
 """Compute, check or test the posterior of the shipped surrogate (fit.posterior).
 
     python -m fit.posterior            # compute and write surrogates/<name>-posterior.{npz,json}
-    python -m fit.posterior --nuts     # NUTS on the EF block against the Laplace (--blocks)
+    python -m fit.posterior --nuts     # NUTS on the EF block against its Laplace
+    python -m fit.posterior --importance  # the mechanics+bench block by importance sampling
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
     python -m fit.posterior --sbc      # simulation-based calibration of the EF block
     python -m fit.posterior --sobol    # Sobol indices (SALib) against the linearised shares
@@ -22,11 +23,12 @@ import numpy as np
 
 
 def _print_parameters(pcard: dict) -> None:
-    print("parameter                          block       centre       sd   (softplus(raw) where "
-          "marked +, else raw)")
+    print("parameter                          block       centre     mean       sd  Laplace sd"
+          "   (softplus(raw) where marked +, else raw; mean and sd of the draws)")
     for name, p in pcard["parameters"].items():
         mark = "+" if p["coordinate"] != "raw" else " "
-        print(f"{mark} {name:32s} {p['block']:9s} {p['centre']:10.4g} {p['sd']:8.3g}")
+        print(f"{mark} {name:32s} {p['block']:9s} {p['centre']:10.4g} {p['mean']:8.4g} "
+              f"{p['sd']:8.3g} {p['laplace_sd']:10.3g}")
 
 
 def _print_discrepancy(pcard: dict) -> None:
@@ -61,81 +63,100 @@ def _record(card_path, key: str, value) -> None:
 def _nuts(args) -> int:
     import jax.numpy as jnp
 
-    from cardiosoft import datasets
-    from cardiosoft.pump import artifact_path, load, load_card, load_posterior
-    from cardiosoft.scene import load_scene
-    from fit import fitting
-    from fit.posterior import artifact, blocks, laplace, nuts
+    from fit.posterior import artifact, laplace, nuts
 
-    post = load_posterior(args.artifact)
-    weights = artifact_path(args.artifact)
-    npz, js = artifact.posterior_paths(weights)
-    with np.load(npz, allow_pickle=False) as f:
-        centre, natural_centre, transform = f["centre"], f["natural_centre"], f["transform"]
-    model, card = load(args.artifact), load_card(args.artifact)
-    layout = blocks.Layout(model, fitting.rig_from_card(card), load_scene(artifact.SCENE))
-    if not np.allclose(layout.centre, centre, rtol=0, atol=1e-12):
-        raise ValueError(f"{npz}: centred elsewhere than the current fit and scene; recompute")
-    d = blocks.training_data(datasets.load_paper_data())
-    dis = post.card["discrepancy"]
-    s0 = blocks.Sigmas(
-        dis["ef_volume"]["s0"] / float(model.unloaded_volume),
-        *(dis[k]["s0"] for k in ("static_sv", "dynamic_sv", "force", "work")),
-    )
-    residuals = {
-        "ef": blocks.ef_residuals(layout, d, s0),
-        laplace.JOINT: blocks.joint_residuals(layout, d, s0, load_scene(artifact.SCENE)),
-    }
-    spans = dict(zip(("ef", laplace.JOINT), laplace._spans(layout), strict=True))
-    record = {}
-    for block in args.blocks:
-        cols = spans[block]
-        chol = transform[cols, cols]
-        natural_cov = chol @ chol.T  # given the earlier blocks at their centre
-        slope = layout.natural_slope(centre)[cols]
-        cov = natural_cov / np.outer(slope, slope)  # the same, linearised in raw coordinates
-        positive = layout.positive[cols]
-
-        def to_natural(a, positive=positive):
-            return np.where(positive, np.logaddexp(0.0, a), a)
-
-        full = residuals[block]
-
-        def residual(x, cols=cols, full=full):
-            return full(jnp.asarray(centre).at[cols].set(x))
-
-        print(f"NUTS on the {block} block ({cols.stop - cols.start} parameters, "
-              f"{args.chains} chains x ({args.warmup} warmup + {args.samples})):", flush=True)
-        check = nuts.run(
-            residual, centre[cols], cov, layout.names[cols], chains=args.chains,
-            warmup=args.warmup, samples=args.samples, seed=args.seed,
-            progress=lambda m: print(m, flush=True),
-            compare=(to_natural, natural_centre[cols], np.sqrt(np.diag(natural_cov))),
+    b = artifact.Shipped(args.artifact)
+    _, result = artifact.nuts_ef(b.layout, b.d, b.s0, b.laplace, 1, args.seed,
+                                 progress=lambda m: print(m, flush=True), chains=args.chains,
+                                 warmup=args.warmup, samples=args.samples)
+    print(f"  {'parameter':32s} {'Laplace sd':>10s} {'NUTS sd':>9s} {'ratio':>6s} "
+          f"{'shift':>6s} {'R-hat':>6s} {'ESS bulk':>8s} {'tail':>6s}")
+    for i, n in enumerate(result.names):
+        print(
+            f"  {n:32s} {result.laplace_sd[i]:10.4g} {result.nuts_sd[i]:9.4g} "
+            f"{result.laplace_sd[i] / result.nuts_sd[i]:6.2f} "
+            f"{result.nuts_mean_shift[i]:+6.2f} {result.rhat[i]:6.3f} "
+            f"{result.ess_bulk[i]:8.0f} {result.ess_tail[i]:6.0f}"
         )
-        print(f"  {'parameter':32s} {'Laplace sd':>10s} {'NUTS sd':>9s} {'ratio':>6s} "
-              f"{'shift':>6s} {'R-hat':>6s} {'ESS bulk':>8s} {'tail':>6s}")
-        for i, n in enumerate(check.names):
-            print(
-                f"  {n:32s} {check.laplace_sd[i]:10.4g} {check.nuts_sd[i]:9.4g} "
-                f"{check.laplace_sd[i] / check.nuts_sd[i]:6.2f} {check.nuts_mean_shift[i]:+6.2f} "
-                f"{check.rhat[i]:6.3f} {check.ess_bulk[i]:8.0f} {check.ess_tail[i]:6.0f}"
-            )
-        print(f"  divergences {check.divergences}; {check.seconds:.0f} s; "
-              f"{'PASSED' if check.passed else 'NOT PASSED'} ({check.record()['criteria']})")
-        record[block] = check.record()
+    print("  (Laplace sd: of its draws, truncated at zero; shift: NUTS's mean minus the "
+          "Laplace's centre, in Laplace sds)")
+    print(f"  divergences {result.divergences}; {result.seconds:.0f} s; mixing (R-hat, ESS, "
+          f"divergences) {'passed' if result.mixed else 'NOT passed'}; Laplace sds within "
+          f"{nuts.SD_RATIO_TOL:.0%}: {'yes' if result.passed else 'NO'}")
+    record = {"ef": result.record() | _ef_predictions(b, result)}
     if args.bench_cost:
-        cols = spans[laplace.JOINT]
-        u = nuts.potential(lambda x: residuals[laplace.JOINT](jnp.asarray(centre).at[cols].set(x)))
-        seconds = nuts.gradient_cost(u, jnp.asarray(centre[cols]))
+        cols = b.spans[laplace.JOINT]
+        u = nuts.potential(b.residual(laplace.JOINT), b.layout.positive[cols])
+        seconds = nuts.gradient_cost(u, jnp.asarray(b.centre[cols]))
         # about 10 gradients per NUTS step at this metric (measured on the EF block)
         estimate = seconds * 10 * (args.warmup + args.samples) * args.chains / 60
         print(f"{laplace.JOINT} block: one gradient {seconds:.2f} s; NUTS at these settings "
               f"would take about {estimate:.0f} min: not run")
         record[laplace.JOINT] = {"gradient_seconds": seconds, "estimated_minutes": estimate,
                                  "run": False}
-    _record(js, "nuts", {**json.loads(js.read_text()).get("nuts", {}), **record})
-    print(f"recorded in {js}")
-    return 0 if all(r.get("passed", True) for r in record.values()) else 1
+    _record(b.card_path, "nuts", record)
+    print(f"recorded in {b.card_path}")
+    return 0 if result.passed else 1
+
+
+def _ef_predictions(b, result) -> dict:
+    """What the EF law's sampler changes in its predictions: Table II's bands from NUTS's draws
+    (as shipped) against those from the Laplace's (truncated at zero, as
+    ``--ef-sampler laplace`` would ship them)."""
+    from fit.posterior import artifact, check, laplace
+
+    ef = b.spans["ef"]
+    nuts_draws = result.draws.reshape(-1, result.draws.shape[-1])
+    lap = laplace.Laplace(b.natural_centre[ef], b.transform[ef, ef], None, {})
+    natural, _ = laplace.draws(lap, len(nuts_draws), 0, lambda y: np.all(
+        (y > 0) | ~b.layout.positive[ef], axis=1))
+    laplace_draws = b.raw_with("ef", natural)[:, ef]
+    bands = {
+        name: check.table2(artifact.as_ensemble(b.layout, b.theta_with("ef", draws),
+                                                b.posterior.card), b.data)
+        for name, draws in (("nuts", nuts_draws), ("laplace", laplace_draws))
+    }
+    edges = np.abs(np.concatenate([bands["nuts"].low - bands["laplace"].low,
+                                   bands["nuts"].high - bands["laplace"].high]))
+    for name, cov in bands.items():
+        print(check.format_coverage(f"Table II, the EF law's draws from {name}", "ml", cov))
+    print(f"  band edges, NUTS's against the Laplace's: largest difference {edges.max():.2f} ml")
+    return {"table2": {name: cov.summary() for name, cov in bands.items()}
+            | {"largest_band_edge_difference_ml": float(edges.max())}}
+
+
+def _importance(args) -> int:
+    import jax.numpy as jnp
+
+    from fit.posterior import artifact, importance, laplace
+
+    b = artifact.Shipped(args.artifact)
+    layout, cols = b.layout, b.spans[laplace.JOINT]
+    potential = b.potential(laplace.JOINT)
+    convex = artifact.convexity_check(layout)
+
+    print(f"importance sampling of the {laplace.JOINT} block given the EF law at the fit "
+          f"({cols.stop - cols.start} parameters, {args.importance_draws} draws):", flush=True)
+    result = importance.run(
+        lambda theta: potential(jnp.asarray(b.theta_with(laplace.JOINT, theta))),
+        b.natural_centre[cols], b.transform[cols, cols], layout.positive[cols],
+        layout.names[cols], to_raw=lambda y: b.raw_with(laplace.JOINT, y)[:, cols],
+        admissible=lambda y: np.asarray(convex(b.raw_with(laplace.JOINT, y))),
+        n=args.importance_draws, seed=args.seed, progress=lambda m: print(m, flush=True),
+    )
+    print(f"  {'parameter':32s} {'Laplace sd':>10s} {'weighted':>9s} {'ratio':>6s} {'shift':>6s}")
+    for i, n in enumerate(result.names):
+        print(f"  {n:32s} {result.laplace_sd[i]:10.4g} {result.weighted_sd[i]:9.4g} "
+              f"{result.laplace_sd[i] / result.weighted_sd[i]:6.2f} "
+              f"{result.weighted_shift[i]:+6.2f}")
+    print(f"  PSIS k-hat {result.khat:.2f} ({'reliable' if result.reliable else 'NOT reliable'}: "
+          f"< {importance.KHAT_RELIABLE}), ESS {result.ess:.0f} of {result.draws}, "
+          f"{result.failed} failed solves; {result.seconds:.0f} s"
+          + ("" if result.reliable else "; the weighted sds are no estimates: the Laplace is "
+             "too far from this block's posterior for its weights to correct it"))
+    _record(b.card_path, "importance", {laplace.JOINT: result.record()})
+    print(f"recorded in {b.card_path}")
+    return 0 if result.reliable else 1
 
 
 def _print_bench(check, bench, sv_title: str, force_title: str) -> None:
@@ -247,7 +268,7 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     from cardiosoft.files import refuse_overwrite
     from cardiosoft.pump import artifact_path
-    from fit.posterior import artifact
+    from fit.posterior import artifact, importance, nuts
 
     parser = argparse.ArgumentParser(
         prog="python -m fit.posterior", description=__doc__.split("\n")[0]
@@ -256,16 +277,22 @@ def main(argv=None) -> int:
     parser.add_argument("--draws", type=int, default=artifact.DRAWS, help="number of draws")
     parser.add_argument("--seed", type=int, default=artifact.SEED, help="seed of the draws")
     parser.add_argument("--force", action="store_true", help="overwrite an existing posterior")
-    parser.add_argument("--nuts", action="store_true", help="NUTS check of the Laplace")
-    parser.add_argument("--blocks", nargs="+", default=["ef"],
-                        choices=["ef", "mechanics+bench"],
-                        help="blocks for --nuts (the second solves the bench in every gradient)")
-    parser.add_argument("--chains", type=int, default=4)
-    parser.add_argument("--warmup", type=int, default=300)
-    parser.add_argument("--samples", type=int, default=500)
+    parser.add_argument("--ef-sampler", choices=artifact.EF_SAMPLERS, default="nuts",
+                        help="how the EF block is drawn (default nuts, about 2 min; laplace: "
+                        "seconds, not close to the posterior)")
+    parser.add_argument("--nuts", action="store_true",
+                        help="NUTS on the EF block against its Laplace (fit.posterior.nuts)")
+    parser.add_argument("--chains", type=int, default=nuts.CHAINS)
+    parser.add_argument("--warmup", type=int, default=nuts.WARMUP)
+    parser.add_argument("--samples", type=int, default=nuts.SAMPLES)
     parser.add_argument("--bench-cost", action="store_true",
                         help="with --nuts: time the mechanics+bench block's gradient and "
                         "estimate its NUTS run")
+    parser.add_argument("--importance", action="store_true",
+                        help="importance sampling (PSIS) of the mechanics+bench block with its "
+                        "Laplace as the proposal (fit.posterior.importance)")
+    parser.add_argument("--importance-draws", type=int, default=importance.DRAWS,
+                        help="draws for --importance (one bench solve each)")
     parser.add_argument("--check", action="store_true", help="held-out checks of the bands")
     parser.add_argument("--sbc", action="store_true",
                         help="simulation-based calibration of the EF block (fit.posterior.sbc)")
@@ -279,6 +306,8 @@ def main(argv=None) -> int:
     try:
         if args.nuts:
             return _nuts(args)
+        if args.importance:
+            return _importance(args)
         if args.check:
             return _check(args)
         if args.sbc:
@@ -293,10 +322,14 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     start = time.perf_counter()
-    arrays, pcard, _, _ = artifact.compute(
-        args.artifact, n_draws=args.draws, seed=args.seed,
-        progress=lambda m: print(m, file=sys.stderr, flush=True),
-    )
+    try:
+        arrays, pcard, _, _ = artifact.compute(
+            args.artifact, n_draws=args.draws, seed=args.seed, ef_sampler=args.ef_sampler,
+            progress=lambda m: print(m, file=sys.stderr, flush=True),
+        )
+    except RuntimeError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
     pcard["seconds"] = round(time.perf_counter() - start, 1)
     npz, js = artifact.write(args.artifact, arrays, pcard)
     _print_parameters(pcard)

@@ -129,9 +129,13 @@ def linearised_fit(path=None, progress=print) -> LinearisedFit:
     return LinearisedFit(model, card, scene, data, d, layout, lin, sizing, s0_ef, ef_loo)
 
 
-def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int):
-    """``n`` draws (n, p) of ``lap`` in the fit's raw coordinates, truncated to the prior's
-    support (positive coefficients, :func:`convexity_check`), and the fraction accepted."""
+def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int, ef_draws=None):
+    """``n`` draws (n, p) in the fit's raw coordinates, truncated to the prior's support
+    (positive coefficients, :func:`convexity_check`), and the fraction of proposals accepted.
+
+    ``ef_draws``: (m >= n, p_ef) raw draws of the EF block from elsewhere (NUTS), in an order
+    to take them in; the later blocks are drawn from ``lap``'s conditional given each
+    (:func:`fit.posterior.laplace.conditional_draws`). Else every block from ``lap``."""
     convex = convexity_check(layout)
     positive = layout.positive
 
@@ -141,8 +145,49 @@ def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int):
         out[inside] = convex(layout.raw(natural[inside]))
         return out
 
-    natural_draws, accepted = laplace.draws(lap, n, seed, admissible)
+    if ef_draws is None:
+        natural_draws, accepted = laplace.draws(lap, n, seed, admissible)
+    else:
+        ef = layout.blocks["ef"]
+        natural_ef = np.where(positive[ef], np.logaddexp(0.0, ef_draws), ef_draws)
+        natural_draws, accepted = laplace.conditional_draws(lap, ef, natural_ef, n, seed,
+                                                            admissible)
     return layout.raw(natural_draws), accepted
+
+
+def nuts_ef(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, lap: laplace.Laplace,
+            n: int, seed: int, progress=print, *, chains=None, warmup=None, samples=None):
+    """NUTS on the EF block (:mod:`fit.posterior.nuts`: its Laplace as the start and metric),
+    the other blocks at the fit's optimum: (every chain's draws (m, p_ef) in raw coordinates,
+    first ``n`` evenly thinned ones, then the rest in a seeded random order: a pool to take
+    draws from where the prior's support rejects some; and the run's
+    :class:`fit.posterior.nuts.NutsCheck`)."""
+    from fit.posterior import nuts
+
+    cols = layout.blocks["ef"]
+    centre = layout.centre
+    full = blocks.ef_residuals(layout, d, s0)
+    natural_cov = lap.conditional["ef"]
+    slope = layout.natural_slope(centre)[cols]
+    positive = layout.positive[cols]
+    chains, warmup, samples = (nuts.CHAINS if chains is None else chains,
+                               nuts.WARMUP if warmup is None else warmup,
+                               nuts.SAMPLES if samples is None else samples)
+    progress(f"NUTS on the EF block ({chains} chains x ({warmup} warmup + {samples}))")
+    result = nuts.run(
+        lambda x: full(jnp.asarray(centre).at[cols].set(x)), centre[cols],
+        natural_cov / np.outer(slope, slope), layout.names[cols], positive=positive,
+        chains=chains, warmup=warmup, samples=samples, seed=seed,
+        progress=progress,
+        compare=(lambda a: np.where(positive, np.logaddexp(0.0, a), a), lap.centre[cols],
+                 laplace.truncated_sd(lap.centre[cols], np.linalg.cholesky(natural_cov),
+                                      positive)),
+    )
+    flat = result.draws.reshape(-1, result.draws.shape[-1])
+    first = np.unique(np.linspace(0, len(flat) - 1, n).round().astype(int))
+    rest = np.setdiff1d(np.arange(len(flat)), first)
+    order = np.concatenate([first, np.random.default_rng(seed).permutation(rest)])
+    return flat[order], result
 
 
 def as_ensemble(layout: blocks.Layout, theta_draws: np.ndarray, card: dict):
@@ -198,9 +243,19 @@ def discrepancy_card(fit: LinearisedFit) -> dict:
     return {"discrepancy": discrepancy}
 
 
-def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, progress=print):
+EF_SAMPLERS = ("nuts", "laplace")
+
+
+def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: str = "nuts",
+            progress=print):
     """The posterior of the surrogate at ``path`` (default: the shipped one) and the bench
-    scene: ``(arrays for the .npz, the posterior card, the Layout, the Laplace)``."""
+    scene: ``(arrays for the .npz, the posterior card, the Layout, the Laplace)``.
+
+    ``ef_sampler``: ``"nuts"`` draws the EF block with NUTS (its Laplace is not close to it:
+    the card's ``nuts`` record) and raises if the chains did not mix; ``"laplace"`` draws every
+    block from the Laplace (seconds instead of minutes)."""
+    if ef_sampler not in EF_SAMPLERS:
+        raise ValueError(f"ef_sampler {ef_sampler!r}: one of {EF_SAMPLERS}")
     fit = linearised_fit(path, progress)
     model, card, scene, data, d, layout, lin, sizing = (
         fit.model, fit.card, fit.scene, fit.data, fit.d, fit.layout, fit.lin, fit.sizing
@@ -210,7 +265,15 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, progress=print
     vu_ml = float(model.unloaded_volume) / ml
     progress("Laplace: the cut posterior's Gauss-Newton covariance")
     lap = laplace.laplace(layout, d, lin, sizing.s0, theta)
-    theta_draws, accepted = sample(layout, lap, n_draws, seed)
+    ef_draws, ef_run = None, None
+    if ef_sampler == "nuts":
+        ef_draws, ef_run = nuts_ef(layout, d, sizing.s0, lap, n_draws, seed, progress)
+        if not ef_run.mixed:
+            raise RuntimeError(
+                "NUTS on the EF block did not mix (R-hat, bulk ESS or divergences: "
+                f"{ef_run.record()['criteria']}); no posterior written"
+            )
+    theta_draws, accepted = sample(layout, lap, n_draws, seed, ef_draws)
     pumps = jax.vmap(layout.pump)(jnp.asarray(theta_draws))
     arrays = {
         "names": np.asarray(layout.names),
@@ -236,7 +299,8 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, progress=print
             f"warning: the scene {SCENE} does not hold the card's rig {mismatch} (scene, card): "
             "its draws are centred on the card's; update the scene"
         )
-    sd = np.sqrt(np.diag(lap.covariance))  # natural coordinates
+    laplace_sd = np.sqrt(np.diag(lap.covariance))  # natural coordinates, not truncated
+    natural_draws = layout.natural(theta_draws)
     offset = laplace.mode_offset(layout, d, lin, sizing.s0)
     pcard = {
         "format_version": POSTERIOR_FORMAT_VERSION,
@@ -250,9 +314,20 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, progress=print
         "support": "draws whose surrogate is convex enough in V (d2U/dV2 >= "
         f"{pipeline.CONVEXITY_MARGIN} E_u on the fit's grid) are kept: the Gaussian truncated "
         "to the prior's support by rejection; 'accepted' is the fraction kept",
-        "method": "Gauss-Newton Laplace approximation of the cut posterior (fit.posterior."
-        "laplace), at the fit's optimum: the shipped weights, the card's rig and the bench "
-        "scene's calibrated numbers; draws from numpy's default generator",
+        "method": (
+            "the EF block by NUTS (fit.posterior.nuts: NumPyro, forward mode, the Laplace as "
+            "start and metric; 'ef_nuts' below), evenly thinned to the draws (the chains' "
+            "other draws, in a seeded order, replacing those the support rejects); "
+            if ef_run is not None else "the EF block from its Laplace approximation; "
+        ) + (
+            "the mechanics+bench block from the Gauss-Newton Laplace approximation of the cut "
+            "posterior (fit.posterior.laplace) given each EF draw, at the fit's optimum: the "
+            "shipped weights, the card's rig and the bench scene's calibrated numbers; numpy's "
+            "default generator. The posterior is a density over the natural coordinates (the "
+            "positive coefficients themselves, the EF law's quadratic rate at Omega 0 and 6), "
+            "its priors functions of them"
+        ),
+        "ef_nuts": None if ef_run is None else ef_run.record(),
         "independence": (
             "a cut posterior: Table I informs only the EF law; the mechanics and the bench's four"
             " are one block conditional on it (its linearised refit as the EF law moves), "
@@ -270,7 +345,9 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, progress=print
                 "block": layout.block_of(i),
                 "coordinate": "softplus(raw)" if layout.positive[i] else "raw",
                 "centre": float(lap.centre[i]),
-                "sd": float(sd[i]),
+                "mean": float(np.mean(natural_draws[:, i])),
+                "sd": float(np.std(natural_draws[:, i], ddof=1)),
+                "laplace_sd": float(laplace_sd[i]),
                 "draws_sd_raw": float(np.std(theta_draws[:, i], ddof=1)),
                 "prior": list(blocks.PRIORS[n][:2]) if n in blocks.PRIORS else None,
                 "prior_reason": blocks.PRIORS[n][2] if n in blocks.PRIORS else None,
@@ -334,3 +411,66 @@ def write(path, arrays: dict, pcard: dict) -> tuple[Path, Path]:
         tmp.write_text(json.dumps(pcard, indent=2) + "\n")
     fitting.record_posterior(weights, {"file": npz.name, "card": js.name, "sha256": digest})
     return npz, js
+
+
+class Shipped:
+    """The shipped posterior's blocks as NUTS and importance sampling see them: the layout, the
+    Laplace (centre, natural centre, Cholesky factor) and each block's whitened residuals."""
+
+    def __init__(self, path):
+        from cardiosoft.pump import artifact_path, load_posterior
+
+        self.posterior = post = load_posterior(path)
+        self.npz, self.card_path = posterior_paths(artifact_path(path))
+        with np.load(self.npz, allow_pickle=False) as f:
+            self.centre, self.natural_centre = f["centre"], f["natural_centre"]
+            self.transform = f["transform"]
+        model, card = load(path), load_card(path)
+        scene = load_scene(SCENE)
+        self.layout = layout = blocks.Layout(model, fitting.rig_from_card(card), scene)
+        if not np.allclose(layout.centre, self.centre, rtol=0, atol=1e-12):
+            raise ValueError(f"{self.npz}: centred elsewhere than the current fit and scene; "
+                             "recompute")
+        self.data = datasets.load_paper_data()
+        self.d = d = blocks.training_data(self.data)
+        dis = post.card["discrepancy"]
+        s0 = blocks.Sigmas(
+            dis["ef_volume"]["s0"] / float(model.unloaded_volume),
+            *(dis[k]["s0"] for k in ("static_sv", "dynamic_sv", "force", "work")),
+        )
+        self.s0 = s0
+        self.spans = dict(zip(("ef", laplace.JOINT), laplace._spans(layout), strict=True))
+        t = self.transform
+        self.laplace = laplace.Laplace(
+            self.natural_centre, t, t @ t.T,
+            {block: t[cols, cols] @ t[cols, cols].T for block, cols in self.spans.items()},
+        )
+        self.residuals = {
+            "ef": blocks.ef_residuals(layout, d, s0),
+            laplace.JOINT: blocks.joint_residuals(layout, d, s0, scene),
+        }
+
+    def residual(self, block):
+        """The block's residuals as a function of its own parameters (the others at the
+        centre)."""
+        cols, full = self.spans[block], self.residuals[block]
+        return lambda x: full(jnp.asarray(self.centre).at[cols].set(x))
+
+    def potential(self, block):
+        """Full raw vectors (n, p) -> the block's potentials ``1/2 |r|^2`` (n,), one compiled,
+        batched call (a failed solve gives a value that is not finite)."""
+        full = self.residuals[block]
+        return jax.jit(jax.vmap(lambda t: 0.5 * jnp.sum(full(t) ** 2)))
+
+    def raw_with(self, block, natural):
+        """Full raw vectors (n, p) from ``block``'s natural coordinates (n, p_block), the rest
+        at the Laplace's natural centre."""
+        full = np.tile(self.natural_centre, (len(natural), 1))
+        full[:, self.spans[block]] = natural
+        return self.layout.raw(full)
+
+    def theta_with(self, block, x):
+        """Full raw parameter vectors (n, p): the centre with ``block``'s columns set to x."""
+        theta = np.tile(self.centre, (len(x), 1))
+        theta[:, self.spans[block]] = x
+        return theta

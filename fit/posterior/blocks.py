@@ -1,8 +1,11 @@
 """The posterior's three blocks as whitened residual vectors: data over their stated sigmas, and
-priors, so that ``1/2 |r(theta)|^2`` is the negative log posterior of each block.
+priors, so that ``1/2 |r(theta)|^2`` is the negative log posterior density of each block over
+its natural coordinates (:meth:`Layout.natural`: the positive coefficients themselves where the
+raw coordinate is a softplus-inverse, :data:`POSITIVE`; the raw one elsewhere).
 
 The parameters are one flat vector ``theta`` in the fit's own raw coordinates (log, logit,
-softplus-inverse), in three blocks:
+softplus-inverse; the EF law's quadratic rate as its softplus-arguments at the ends of the Omega
+range, :data:`QUADRATIC_OMEGAS`), in three blocks:
 
 - ``ef``: the EF_0 law of stage 1 (``pipeline.EF_FIELDS``, 7 numbers), on Table I;
 - ``mechanics``: stage 2, the surrogate's ``pipeline.MECHANICS_FIELDS`` and the rig's
@@ -37,6 +40,9 @@ cut posterior (no feedback from a later block's data onto an earlier block's par
 
 **Priors** (``PRIORS``): broad normal priors on the raw parameters of stages 2 and the bench,
 each written as one more residual ``(theta - mu) / s``; the EF block's prior is the fit's ridge.
+Read as densities of the natural coordinates (a positive coefficient's prior is
+``N(softplus^-1(c); mu, s)`` as a function of c), so that no flat half-line of a saturated
+softplus piles prior mass onto a coefficient of zero.
 """
 
 from __future__ import annotations
@@ -51,6 +57,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from cardiosoft.explain import BENCH_FIELDS
+from cardiosoft.pump import centred_omega
 from cardiosoft.units import mm, mmHg
 from fit import pipeline
 
@@ -125,6 +132,7 @@ PRIORS: dict[str, tuple[float, float, str]] = {
 
 POSITIVE = (
     "ef_linear",
+    "ef_quadratic",
     "fold_depth",
     "three_fold_depth",
     "softening_exponent",
@@ -134,8 +142,15 @@ POSITIVE = (
 )
 """Raw parameters that are softplus-inverses of one positive coefficient each (the EF law's
 rates and depths, g - 1/2, kappa, k, mu theta). Near zero their raw coordinate is flat (the
-softplus saturates), far from Gaussian; the Laplace approximation is taken in the coefficient
-itself, truncated at zero (:mod:`fit.posterior.laplace`)."""
+softplus saturates): a density stated over it would put the whole flat half-line's prior mass
+on a coefficient of about zero. The posterior is therefore stated over the coefficients
+themselves (the natural coordinates, :meth:`Layout.natural`), its priors being functions of
+them, and the Laplace approximation is taken there, truncated at zero
+(:mod:`fit.posterior.laplace`). The EF law's quadratic rate ``b(Omega) = softplus(p0 + p1 w)``
+enters as its values at the ends of the fitted Omega range (:data:`QUADRATIC_OMEGAS`)."""
+QUADRATIC_OMEGAS = (0.0, 6.0)
+"""Where the EF law's quadratic rate b(Omega) is a coordinate of the posterior: the fitted
+range's ends (``Domain.omega``); ``p0 + p1 w`` at them determines (p0, p1)."""
 
 
 class Sigmas(NamedTuple):
@@ -173,8 +188,19 @@ class Layout:
         self.fitted_model, self.fitted_rig = model, rig
         flat_ef, self._unravel_ef = ravel_pytree(ef)
         flat_mech, self._unravel_mech = ravel_pytree((mech, rig_params))
+        ef_names = _names(model, pipeline.EF_FIELDS)
+        # the quadratic rate's (p0, p1) as its softplus-arguments at QUADRATIC_OMEGAS: a linear
+        # map, so that b at either end is one positive coordinate
+        quadratic = [ef_names.index(f"ef_quadratic[{i}]") for i in range(2)]
+        w = np.array([centred_omega(o) for o in QUADRATIC_OMEGAS])
+        self._to_layout = np.eye(len(ef_names))
+        self._to_layout[np.ix_(quadratic, quadratic)] = np.stack([np.ones(2), w], axis=1)
+        self._from_layout = np.linalg.inv(self._to_layout)
+        for i, o in zip(quadratic, QUADRATIC_OMEGAS, strict=True):
+            ef_names[i] = f"ef_quadratic(Omega {o:g})"
+        flat_ef = self._to_layout @ np.asarray(flat_ef)
         bench = np.log(np.array([float(getattr(bench_scene, f)) for f in BENCH_SCENE_FIELDS]))
-        self.centre = np.concatenate([np.asarray(flat_ef), np.asarray(flat_mech), bench])
+        self.centre = np.concatenate([flat_ef, np.asarray(flat_mech), bench])
         n_ef, n_mech = flat_ef.size, flat_mech.size
         self.blocks = {
             "ef": slice(0, n_ef),
@@ -182,7 +208,7 @@ class Layout:
             "bench": slice(n_ef + n_mech, n_ef + n_mech + 4),
         }
         self.names = tuple(
-            _names(model, pipeline.EF_FIELDS)
+            ef_names
             + _names(model, MECHANICS)
             + _names(rig, RIG)
             + list(BENCH_NAMES)
@@ -191,7 +217,7 @@ class Layout:
     @property
     def positive(self) -> np.ndarray:
         """Which parameters are softplus-inverses of positive coefficients (:data:`POSITIVE`)."""
-        return np.array([n.split("[")[0] in POSITIVE for n in self.names])
+        return np.array([n.split("[")[0].split("(")[0] in POSITIVE for n in self.names])
 
     def natural(self, theta):
         """The Laplace's coordinates: ``softplus(theta)`` where :attr:`positive`, else theta."""
@@ -212,7 +238,7 @@ class Layout:
 
     def pump(self, theta):
         """The surrogate whose EF and mechanics parameters are ``theta``'s."""
-        ef = self._unravel_ef(theta[self.blocks["ef"]])
+        ef = self._unravel_ef(jnp.asarray(self._from_layout) @ theta[self.blocks["ef"]])
         mech, _ = self._unravel_mech(theta[self.blocks["mechanics"]])
         model = eqx.combine(ef, self._ef_static)
         fields = MECHANICS
