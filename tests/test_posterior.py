@@ -305,7 +305,7 @@ def ef_nuts():
     from fit.posterior.artifact import Shipped, nuts_ef
 
     b = Shipped(None)
-    return nuts_ef(b.layout, b.d, b.s0, b.laplace, 1, seed=0, progress=lambda m: None)[1]
+    return nuts_ef(b.layout, b.d, b.s0, b.laplace, seed=0, progress=lambda m: None)
 
 
 @pytest.mark.slow

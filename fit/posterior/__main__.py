@@ -66,9 +66,9 @@ def _nuts(args) -> int:
     from fit.posterior import artifact, laplace, nuts
 
     b = artifact.Shipped(args.artifact)
-    _, result = artifact.nuts_ef(b.layout, b.d, b.s0, b.laplace, 1, args.seed,
-                                 progress=lambda m: print(m, flush=True), chains=args.chains,
-                                 warmup=args.warmup, samples=args.samples)
+    result = artifact.nuts_ef(b.layout, b.d, b.s0, b.laplace, args.seed,
+                              progress=lambda m: print(m, flush=True), chains=args.chains,
+                              warmup=args.warmup, samples=args.samples)
     print(f"  {'parameter':32s} {'Laplace sd':>10s} {'NUTS sd':>9s} {'ratio':>6s} "
           f"{'shift':>6s} {'R-hat':>6s} {'ESS bulk':>8s} {'tail':>6s}")
     for i, n in enumerate(result.names):
@@ -108,8 +108,7 @@ def _ef_predictions(b, result) -> dict:
     ef = b.spans["ef"]
     nuts_draws = result.draws.reshape(-1, result.draws.shape[-1])
     lap = laplace.Laplace(b.natural_centre[ef], b.transform[ef, ef], None, {})
-    natural, _ = laplace.draws(lap, len(nuts_draws), 0, lambda y: np.all(
-        (y > 0) | ~b.layout.positive[ef], axis=1))
+    natural, _ = laplace.draws(lap, len(nuts_draws), 0, positive=b.layout.positive[ef])
     laplace_draws = b.raw_with("ef", natural)[:, ef]
     bands = {
         name: check.table2(artifact.as_ensemble(b.layout, b.theta_with("ef", draws),

@@ -27,7 +27,7 @@ from cardiosoft.pump import POSTERIOR_FORMAT_VERSION, load, load_card
 from cardiosoft.scene import load_scene
 from cardiosoft.units import ml, mmHg
 from fit import fitting, pipeline
-from fit.posterior import blocks, laplace
+from fit.posterior import blocks, laplace, nuts
 
 DRAWS = 256
 SEED = 0
@@ -139,55 +139,48 @@ def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int, ef_dr
     convex = convexity_check(layout)
     positive = layout.positive
 
-    def admissible(natural):
-        inside = np.all((natural > 0) | ~positive, axis=1)
-        out = np.zeros(len(natural), bool)
-        out[inside] = convex(layout.raw(natural[inside]))
-        return out
+    def admissible(natural):  # of positive draws
+        return convex(layout.raw(natural))
 
     if ef_draws is None:
-        natural_draws, accepted = laplace.draws(lap, n, seed, admissible)
+        natural_draws, accepted = laplace.draws(lap, n, seed, admissible, positive)
     else:
         ef = layout.blocks["ef"]
         natural_ef = np.where(positive[ef], np.logaddexp(0.0, ef_draws), ef_draws)
         natural_draws, accepted = laplace.conditional_draws(lap, ef, natural_ef, n, seed,
-                                                            admissible)
+                                                            admissible, positive)
     return layout.raw(natural_draws), accepted
 
 
 def nuts_ef(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, lap: laplace.Laplace,
-            n: int, seed: int, progress=print, *, chains=None, warmup=None, samples=None):
+            seed: int, progress=print, *, chains=nuts.CHAINS, warmup=nuts.WARMUP,
+            samples=nuts.SAMPLES) -> nuts.NutsCheck:
     """NUTS on the EF block (:mod:`fit.posterior.nuts`: its Laplace as the start and metric),
-    the other blocks at the fit's optimum: (every chain's draws (m, p_ef) in raw coordinates,
-    first ``n`` evenly thinned ones, then the rest in a seeded random order: a pool to take
-    draws from where the prior's support rejects some; and the run's
-    :class:`fit.posterior.nuts.NutsCheck`)."""
-    from fit.posterior import nuts
-
+    the other blocks at the fit's optimum."""
     cols = layout.blocks["ef"]
     centre = layout.centre
     full = blocks.ef_residuals(layout, d, s0)
     natural_cov = lap.conditional["ef"]
     slope = layout.natural_slope(centre)[cols]
     positive = layout.positive[cols]
-    chains, warmup, samples = (nuts.CHAINS if chains is None else chains,
-                               nuts.WARMUP if warmup is None else warmup,
-                               nuts.SAMPLES if samples is None else samples)
     progress(f"NUTS on the EF block ({chains} chains x ({warmup} warmup + {samples}))")
-    result = nuts.run(
+    return nuts.run(
         lambda x: full(jnp.asarray(centre).at[cols].set(x)), centre[cols],
         natural_cov / np.outer(slope, slope), layout.names[cols], positive=positive,
-        chains=chains, warmup=warmup, samples=samples, seed=seed,
-        progress=progress,
+        chains=chains, warmup=warmup, samples=samples, seed=seed, progress=progress,
         compare=(lambda a: np.where(positive, np.logaddexp(0.0, a), a), lap.centre[cols],
                  laplace.truncated_sd(lap.centre[cols], np.linalg.cholesky(natural_cov),
                                       positive)),
     )
-    flat = result.draws.reshape(-1, result.draws.shape[-1])
+
+
+def draw_pool(run: nuts.NutsCheck, n: int, seed: int) -> np.ndarray:
+    """Every chain's draws (m, p) of ``run``, first ``n`` evenly thinned ones, then the rest in
+    a seeded random order: a pool to take draws from where the prior's support rejects some."""
+    flat = run.draws.reshape(-1, run.draws.shape[-1])
     first = np.unique(np.linspace(0, len(flat) - 1, n).round().astype(int))
     rest = np.setdiff1d(np.arange(len(flat)), first)
-    order = np.concatenate([first, np.random.default_rng(seed).permutation(rest)])
-    return flat[order], result
+    return flat[np.concatenate([first, np.random.default_rng(seed).permutation(rest)])]
 
 
 def as_ensemble(layout: blocks.Layout, theta_draws: np.ndarray, card: dict):
@@ -267,7 +260,8 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: st
     lap = laplace.laplace(layout, d, lin, sizing.s0, theta)
     ef_draws, ef_run = None, None
     if ef_sampler == "nuts":
-        ef_draws, ef_run = nuts_ef(layout, d, sizing.s0, lap, n_draws, seed, progress)
+        ef_run = nuts_ef(layout, d, sizing.s0, lap, seed, progress)
+        ef_draws = draw_pool(ef_run, n_draws, seed)
         if not ef_run.mixed:
             raise RuntimeError(
                 "NUTS on the EF block did not mix (R-hat, bulk ESS or divergences: "

@@ -83,28 +83,22 @@ def run(potential, centre, chol, positive, names, *, to_raw, admissible=None, n=
 
     ``potential``: a batch of raw draws (m, p) -> (m,) potentials (the block's ``1/2 |r|^2``,
     +inf or NaN where the solve failed); ``to_raw``: natural -> raw coordinates (a batch);
-    ``positive``: (p,) bools, coordinates that must be > 0; ``admissible``: natural batch ->
-    bools, the rest of the prior's support (the proposal is truncated to both by rejection, as
-    the shipped draws are)."""
+    ``positive``: (p,) bools, coordinates that must be > 0; ``admissible``: natural batch (of
+    positive draws) -> bools, the rest of the prior's support (the proposal is truncated to
+    both by rejection, as the shipped draws are: :func:`fit.posterior.laplace.draws`)."""
     import arviz as az
     from scipy.linalg import solve_triangular
 
     from fit.posterior.laplace import Laplace, draws
 
     centre, chol = np.asarray(centre, float), np.asarray(chol, float)
-
-    def support(y):
-        inside = np.all((y > 0) | ~positive, axis=1)
-        if admissible is not None:
-            inside[inside] = admissible(y[inside])
-        return inside
-
-    y, _ = draws(Laplace(centre, chol, chol @ chol.T, {}), n, seed, support)
+    y, _ = draws(Laplace(centre, chol, chol @ chol.T, {}), n, seed, admissible, positive)
     z = solve_triangular(chol, (y - centre).T, lower=True).T
     start = time.perf_counter()
     progress(f"  {n} draws of the Laplace, their potential (one batched solve each)")
-    u_centre = float(np.asarray(potential(to_raw(centre[None])))[0])
-    u = np.asarray(potential(to_raw(y)), float)
+    # the centre in the same batch: one compiled call, not a second one for a batch of one
+    u = np.asarray(potential(to_raw(np.concatenate([centre[None], y]))), float)
+    u_centre, u = float(u[0]), u[1:]
     seconds = time.perf_counter() - start
     lw = log_weights(u, u_centre, z)
     failed = int(np.sum(~np.isfinite(lw)))

@@ -345,15 +345,26 @@ def _laplace_raw(layout, d, lin, s0, theta, column_scale, keep=None) -> Laplace:
 MAX_DRAW_ROUNDS = 50
 
 
-def conditional_draws(lap: Laplace, given: slice, pool, n: int, seed: int, admissible=None):
+def _inside(batch, positive, admissible):
+    """Which draws of ``batch`` (m, p) lie in the prior's support: > 0 where ``positive``,
+    and ``admissible`` (a function of the draws the positivity keeps)."""
+    inside = np.ones(len(batch), bool) if positive is None else np.all(
+        (batch > 0) | ~np.asarray(positive, bool), axis=1)
+    if admissible is not None:
+        inside[inside] = np.asarray(admissible(batch[inside]), bool)
+    return inside
+
+
+def conditional_draws(lap: Laplace, given: slice, pool, n: int, seed: int, admissible=None,
+                      positive=None):
     """``n`` draws (n, p) whose leading block ``given`` comes from ``pool`` (m, p_given), rows
     taken in order, in its natural coordinates, and whose later blocks come from the cut
     Laplace's conditional given it (the linearised refit as the given block moves, and its own
     covariance); and the fraction of proposals accepted.
 
-    ``admissible`` as in :func:`draws`: a whole draw outside the prior's support is rejected
-    and the pool's next row proposed, so the support truncates the joint distribution as it
-    does the Laplace's."""
+    ``admissible``, ``positive`` as in :func:`draws`: a whole draw outside the prior's support
+    is rejected and the pool's next row proposed, so the support truncates the joint
+    distribution as it does the Laplace's."""
     pool = np.asarray(pool, float)
     rest = slice(given.stop, len(lap.centre))
     t = lap.transform
@@ -368,7 +379,7 @@ def conditional_draws(lap: Laplace, given: slice, pool, n: int, seed: int, admis
         batch[:, rest] = (lap.centre[rest] + z_given @ t[rest, given].T
                           + rng.standard_normal((len(values), rest.stop - rest.start))
                           @ t[rest, rest].T)
-        kept += list(batch if admissible is None else batch[np.asarray(admissible(batch))])
+        kept += list(batch[_inside(batch, positive, admissible)])
     if len(kept) < n:
         raise RuntimeError(
             f"only {len(kept)} of {proposed} draws inside the prior's support: {n} wanted; "
@@ -377,22 +388,23 @@ def conditional_draws(lap: Laplace, given: slice, pool, n: int, seed: int, admis
     return np.asarray(kept), n / proposed
 
 
-def draws(lap: Laplace, n: int, seed: int, admissible=None):
+def draws(lap: Laplace, n: int, seed: int, admissible=None, positive=None):
     """``n`` draws (n, p) of the Laplace approximation, seeded (numpy's default generator),
     and the fraction of proposals accepted.
 
-    ``admissible``: a function of a batch of draws (m, p) -> (m,) bools, the support of the
-    prior (the surrogate's convexity constraint): the Gaussian is truncated to it by
-    rejection, proposals drawn in batches of n until n are accepted.
+    The Gaussian is truncated to the prior's support by rejection, proposals drawn in batches
+    of n until n are accepted: ``positive`` (p,) bools, coordinates that must be > 0 (the
+    positive coefficients); ``admissible`` a function of a batch of draws (m, p) -> (m,)
+    bools, the rest of the support (the surrogate's convexity constraint).
     """
     rng = np.random.default_rng(seed)
     kept, proposed = [], 0
     for _ in range(MAX_DRAW_ROUNDS):
         batch = lap.centre + rng.standard_normal((n, len(lap.centre))) @ lap.transform.T
         proposed += n
-        kept += list(batch if admissible is None else batch[np.asarray(admissible(batch))])
+        kept += list(batch[_inside(batch, positive, admissible)])
         if len(kept) >= n:
-            return np.asarray(kept[:n]), n / proposed if admissible else 1.0
+            return np.asarray(kept[:n]), n / proposed
     raise RuntimeError(
         f"the Laplace approximation put {len(kept)} of {proposed} draws inside the prior's "
         "support: it is no approximation of this posterior"
@@ -407,7 +419,5 @@ def truncated_sd(centre, chol, positive, seed: int = 0) -> np.ndarray:
     ``positive``: the Laplace's sds as its draws have them, from
     :data:`TRUNCATED_SD_DRAWS` draws (Monte Carlo error about 1 %)."""
     lap = Laplace(np.asarray(centre), np.asarray(chol), None, {})
-    y, _ = draws(lap, TRUNCATED_SD_DRAWS, seed,
-                 lambda a: np.all((a > 0) | ~np.asarray(positive), axis=1))
+    y, _ = draws(lap, TRUNCATED_SD_DRAWS, seed, positive=positive)
     return y.std(axis=0, ddof=1)
-

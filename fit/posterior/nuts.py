@@ -151,7 +151,9 @@ def run(
     z = np.random.default_rng(seed).standard_normal((chains, len(centre)))
     init = np.asarray(centre) + START_SPREAD * z @ chol.T
     start = time.perf_counter()
-    mcmc.run(jax.random.PRNGKey(seed), init_params=jnp.asarray(init), extra_fields=("diverging",))
+    # NumPyro takes one chain's start unbatched
+    start_at = jnp.asarray(init[0] if chains == 1 else init)
+    mcmc.run(jax.random.PRNGKey(seed), init_params=start_at, extra_fields=("diverging",))
     draws = np.asarray(jax.block_until_ready(mcmc.get_samples(group_by_chain=True)))
     seconds = time.perf_counter() - start
     diverging = int(np.sum(np.asarray(mcmc.get_extra_fields()["diverging"])))

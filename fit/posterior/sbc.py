@@ -137,10 +137,7 @@ def run(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, lap_ef, data, 
         fitted, jac = np.asarray(fitted), np.asarray(jac)
         slope = np.where(positive, 1.0 / (1.0 + np.exp(-fitted)), 1.0)
         lap = laplace.cut_laplace(natural(fitted), [jac / slope], [slice(0, len(fitted))])
-        draws, _ = laplace.draws(
-            lap, DRAWS, int(rng.integers(2**31)),
-            lambda b: np.all((b > 0) | ~positive, axis=1),
-        )
+        draws, _ = laplace.draws(lap, DRAWS, int(rng.integers(2**31)), positive=positive)
         draws_raw = raw(draws)
         quantities = np.concatenate([draws, np.asarray(table2_draws(jnp.asarray(draws_raw)))],
                                     axis=1)
