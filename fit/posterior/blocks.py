@@ -34,9 +34,20 @@ cut posterior (no feedback from a later block's data onto an earlier block's par
   discrepancy s0 in quadrature; mechanical work M = P_a SV_dyn / e: the dynamic SV's relative
   SD and the efficiency's rounding (0.0005) in quadrature, plus the work discrepancy;
 - dynamic SV: the paper's SDs plus the dynamic SV's discrepancy;
-- the FEM comparisons (efficiencies 0.02, ratios 10 %) and the convexity constraint: the
-  fit's own scales, each stated in ``fit.pipeline`` as the surrogate's form error against a
-  computed reference (no measurement there).
+- the FEM comparisons (efficiencies 0.02, ratios 10 %): the fit's own scales, stated in
+  ``fit.pipeline`` as the surrogate's form error against a computed reference (no measurement
+  there).
+
+**Support.** The convexity constraint (one volume per pull and pressure: ``d2U/dV2 >=
+pipeline.CONVEXITY_MARGIN E_u`` on the fit's grid, :func:`smallest_stiffness`) is the prior's
+support, written as one residual that is 0 inside and +inf outside: the shipped draws are
+truncated to that support, and NUTS and importance sampling see the same. The fit's own form
+of it, a hinge at 1.2 times the margin with a scale of 1e-3 E_u (``pipeline.
+convexity_residuals``: a margin for the fit's coarse grid), is no part of the posterior: the
+fit's optimum ends on that hinge (3e-6 below it), where its one-sided wall entered the
+Gauss-Newton Hessian as a two-sided one of slope 1000 and pinned the swelling resistance's sd
+at 0.08 (0.55 without it); and the fifth of the draws that lie between the margin and the
+hinge were charged up to 200 in potential there.
 
 **Priors** (``PRIORS``): broad normal priors on the raw parameters of stages 2 and the bench,
 each written as one more residual ``(theta - mu) / s``; the EF block's prior is the fit's ridge.
@@ -326,18 +337,31 @@ def mechanics_outputs(layout: Layout, d: Data):
     return outputs
 
 
+def smallest_stiffness(layout: Layout):
+    """theta -> the smallest ``d2U/dV2 / E_u`` of its surrogate on the fit's grid
+    (``pipeline.CONVEXITY_FIT_GRID``): inside the prior's support where it is at least
+    ``pipeline.CONVEXITY_MARGIN`` (module docstring, "Support")."""
+    n_omega, n_c, n_v = pipeline.CONVEXITY_FIT_GRID
+    dom = layout.fitted_model.domain
+    omegas, cs = jnp.linspace(*dom.omega, n_omega), jnp.linspace(*dom.shortening, n_c)
+    return lambda theta: jnp.min(pipeline.stiffness_grid(layout.pump(theta), omegas, cs, n_v))
+
+
 def mechanics_fixed_rows(layout: Layout, d: Data):
     """theta -> the mechanics block's rows whose sigmas do not depend on the discrepancy: the
-    convexity constraint and the FEM comparisons (the fit's own scales), and the priors."""
+    support (0 inside, +inf outside; module docstring), the FEM comparisons (the fit's own
+    scales), and the priors."""
     t = d.t
     idx, mu, sd = layout.prior_rows("mechanics")
+    smallest = smallest_stiffness(layout)
 
     def rows(theta):
         model, rig = layout.pump(theta), layout.rig(theta)
         fem = pipeline.fem_prediction(model, rig)
+        inside = smallest(theta) >= pipeline.CONVEXITY_MARGIN
         return jnp.concatenate(
             [
-                pipeline.convexity_residuals(model),
+                jnp.where(inside, 0.0, jnp.inf)[None],
                 jnp.stack(
                     [
                         (fem.efficiency_helical - t.fem_efficiency_helical) / 0.02,

@@ -293,7 +293,7 @@ JOINT = "mechanics+bench"
 
 def joint_rows(layout: Layout, d: blocks.Data, lin: Linearisation, s0: Sigmas, keep=None):
     """(whitened residuals, their Jacobian over every parameter) of the second block: the
-    mechanics rows (quasi-static SVs and peak forces, FEM, convexity, priors), then the bench
+    mechanics rows (quasi-static SVs and peak forces, the support, FEM, priors), then the bench
     rows (dynamic SVs and works, priors). The paper's work M is one measurement: it enters as
     the dynamic work only (the fit's stage 2 fits the quasi-static work to it too). ``keep``:
     which afterloads keep their four data rows (bools; default all)."""

@@ -8,10 +8,11 @@ coordinates the posterior is stated in), differentiated in forward mode
 ``while_loop`` s, and the blocks have 7-14 parameters), with a dense mass matrix that starts as
 the Gauss-Newton covariance and is adapted in the warmup; the chains start at dispersed Laplace
 draws and run one after the other (two cores: a vmapped pair would run at the slower one's
-pace). A residual that is not finite (a failed root find) makes the potential +inf, never NaN.
-Diagnostics are ArviZ's rank-normalised split R-hat and bulk and tail ESS (Vehtari et al. 2021)
-and NumPyro's divergences. The mechanics and bench block solves the bench in every gradient;
-:mod:`fit.posterior.importance` checks its Laplace instead.
+pace). A residual that is not finite (a failed root find, a draw outside the prior's
+support) makes the potential +inf, never NaN. Diagnostics are ArviZ's rank-normalised split
+R-hat and bulk and tail ESS (Vehtari et al. 2021) and NumPyro's divergences. The mechanics
+and bench block solves the bench in every gradient; :mod:`fit.posterior.importance` checks its
+Laplace instead.
 """
 
 from __future__ import annotations
