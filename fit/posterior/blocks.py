@@ -42,12 +42,12 @@ cut posterior (no feedback from a later block's data onto an earlier block's par
 pipeline.CONVEXITY_MARGIN E_u`` on the fit's grid, :func:`smallest_stiffness`) is the prior's
 support, written as one residual that is 0 inside and +inf outside: the shipped draws are
 truncated to that support, and NUTS and importance sampling see the same. The fit's own form
-of it, a hinge at 1.2 times the margin with a scale of 1e-3 E_u (``pipeline.
-convexity_residuals``: a margin for the fit's coarse grid), is no part of the posterior: the
-fit's optimum ends on that hinge (3e-6 below it), where its one-sided wall entered the
-Gauss-Newton Hessian as a two-sided one of slope 1000 and pinned the swelling resistance's sd
-at 0.08 (0.55 without it); and the fifth of the draws that lie between the margin and the
-hinge were charged up to 200 in potential there.
+of it, a hinge at 1.2 times the margin with a scale of 1e-3 E_u
+(``pipeline.convexity_residuals``: a margin for the fit's coarse grid), is no part of the
+posterior: the fit's optimum ends on that hinge (3e-6 below it), where its one-sided wall
+entered the Gauss-Newton Hessian as a two-sided one of slope 1000 and pinned the swelling
+resistance's sd at 0.08 (0.55 without it); and the fifth of the draws that lie between the
+margin and the hinge were charged up to 200 in potential there.
 
 **Priors** (``PRIORS``): broad normal priors on the raw parameters of stages 2 and the bench,
 each written as one more residual ``(theta - mu) / s``; the EF block's prior is the fit's ridge.
