@@ -137,7 +137,7 @@ def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int, ef_dr
         natural_draws, accepted = laplace.draws(lap, n, seed, admissible, positive)
     else:
         ef = layout.blocks["ef"]
-        natural_ef = np.where(positive[ef], np.logaddexp(0.0, ef_draws), ef_draws)
+        natural_ef = layout.natural(ef_draws, ef)
         natural_draws, accepted = laplace.conditional_draws(lap, ef, natural_ef, n, seed,
                                                             admissible, positive)
     return layout.raw(natural_draws), accepted
@@ -159,7 +159,7 @@ def nuts_ef(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, lap: lapla
         lambda x: full(jnp.asarray(centre).at[cols].set(x)), centre[cols],
         natural_cov / np.outer(slope, slope), layout.names[cols], positive=positive,
         chains=chains, warmup=warmup, samples=samples, seed=seed, progress=progress,
-        compare=(lambda a: np.where(positive, np.logaddexp(0.0, a), a), lap.centre[cols],
+        compare=(lambda a: layout.natural(a, cols), lap.centre[cols],
                  laplace.truncated_sd(lap.centre[cols], np.linalg.cholesky(natural_cov),
                                       positive)),
     )

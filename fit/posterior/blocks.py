@@ -230,22 +230,26 @@ class Layout:
         """Which parameters are softplus-inverses of positive coefficients (:data:`POSITIVE`)."""
         return np.array([n.split("[")[0].split("(")[0] in POSITIVE for n in self.names])
 
-    def natural(self, theta):
-        """The Laplace's coordinates: ``softplus(theta)`` where :attr:`positive`, else theta."""
+    def natural(self, theta, cols=None):
+        """The Laplace's coordinates: ``softplus(theta)`` where :attr:`positive`, else theta.
+        ``cols``: ``theta`` holds only these columns (a block's slice; default all)."""
         theta = np.asarray(theta, float)
-        return np.where(self.positive, np.logaddexp(0.0, theta), theta)
+        return np.where(self._positive(cols), np.logaddexp(0.0, theta), theta)
 
-    def raw(self, natural):
+    def raw(self, natural, cols=None):
         """The inverse of :meth:`natural` (its positive coordinates must be > 0)."""
         natural = np.asarray(natural, float)
-        with np.errstate(invalid="ignore", divide="ignore"):
+        with np.errstate(invalid="ignore", divide="ignore"):  # where() evaluates both sides
             inverse = natural + np.log(-np.expm1(-natural))
-        return np.where(self.positive, inverse, natural)
+        return np.where(self._positive(cols), inverse, natural)
 
-    def natural_slope(self, theta):
+    def natural_slope(self, theta, cols=None):
         """d natural / d theta: ``sigmoid(theta)`` where :attr:`positive`, else 1."""
         theta = np.asarray(theta, float)
-        return np.where(self.positive, 1.0 / (1.0 + np.exp(-theta)), 1.0)
+        return np.where(self._positive(cols), 1.0 / (1.0 + np.exp(-theta)), 1.0)
+
+    def _positive(self, cols):
+        return self.positive if cols is None else self.positive[cols]
 
     def pump(self, theta):
         """The surrogate whose EF and mechanics parameters are ``theta``'s."""

@@ -117,28 +117,24 @@ def run(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, lap_ef, data, 
     names = [*layout.names[cols], *(f"EF_0 Omega {o:g}, C {c:.1f}" for o, c in
                                     zip(t2["omega"], t2["shortening"], strict=True))]
     ranks, failed = [], 0
-    natural = lambda a: np.where(positive, np.logaddexp(0.0, a), a)  # noqa: E731
-    def raw(a):
-        with np.errstate(invalid="ignore", divide="ignore"):  # where() evaluates both
-            return np.where(positive, a + np.log(-np.expm1(-a)), a)
-
     lap_centre, lap_transform = lap_ef
     while len(ranks) < replicates:
         z = rng.standard_normal(len(lap_centre))
         truth_natural = lap_centre + lap_transform @ z
         if np.any(truth_natural[positive] <= 0):
             continue  # outside the prior's support: not a draw of the shipped posterior
-        truth = raw(truth_natural)
+        truth = layout.raw(truth_natural, cols)
         synthetic = np.asarray(table1(truth)) + sigma * rng.standard_normal(len(d.t.t1_ef))
         fitted, jac, ok = refit_and_jacobian(jnp.asarray(synthetic))
         if not bool(ok):
             failed += 1
             continue
         fitted, jac = np.asarray(fitted), np.asarray(jac)
-        slope = np.where(positive, 1.0 / (1.0 + np.exp(-fitted)), 1.0)
-        lap = laplace.cut_laplace(natural(fitted), [jac / slope], [slice(0, len(fitted))])
+        slope = layout.natural_slope(fitted, cols)
+        lap = laplace.cut_laplace(layout.natural(fitted, cols), [jac / slope],
+                                  [slice(0, len(fitted))])
         draws, _ = laplace.draws(lap, DRAWS, int(rng.integers(2**31)), positive=positive)
-        draws_raw = raw(draws)
+        draws_raw = layout.raw(draws, cols)
         quantities = np.concatenate([draws, np.asarray(table2_draws(jnp.asarray(draws_raw)))],
                                     axis=1)
         true_q = np.concatenate([truth_natural, np.asarray(table2(truth))])

@@ -89,7 +89,7 @@ def run(layout, arrays: dict, posterior, *, base_samples: int = BASE_SAMPLES, se
     from fit.posterior import artifact
 
     centre = np.asarray(arrays["centre"], float)
-    slope = np.where(arrays["positive"], 1.0 / (1.0 + np.exp(-centre)), 1.0)
+    slope = layout.natural_slope(centre)
     transform = np.asarray(arrays["transform"]) / slope[:, None]  # raw coordinates
     d = len(centre)
     names = [f"z{i} ({n})" for i, n in enumerate(layout.names)]
