@@ -279,6 +279,31 @@ def test_posterior_density_has_the_draws_support():
     assert np.all(np.isfinite(r[~outside]))
 
 
+@pytest.mark.slow
+def test_leaving_an_afterload_out_drops_its_four_rows():
+    """The leave-one-afterload-out posterior's residuals (``joint_residuals(keep=...)``) are
+    the whole block's with exactly the left-out head's static SV, peak force, dynamic SV and
+    work set to 0: the support, the FEM rows and the priors stay. Checked against the rows'
+    values at the fit's optimum, where none of the four is 0."""
+    import jax
+    import jax.numpy as jnp
+
+    from cardiosoft.scene import load_scene
+    from fit.posterior import artifact, blocks
+
+    b = artifact.Shipped(None)
+    scene = load_scene(artifact.SCENE)
+    keep = np.array([True, False, True])
+    full = blocks.joint_residuals(b.layout, b.d, b.s0, scene)
+    left = blocks.joint_residuals(b.layout, b.d, b.s0, scene, keep=keep)
+    r, r_left = (np.asarray(x) for x in jax.jit(lambda t: (full(t), left(t)))(
+        jnp.asarray(b.centre)))
+    n_fixed = 1 + len(blocks.FEM_ROWS) + len(b.layout.prior_rows("mechanics")[0])
+    dropped = np.array([1, 4, 6 + n_fixed + 1, 6 + n_fixed + 4])  # the middle head's four
+    assert np.all(r[dropped] != 0.0) and np.all(r_left[dropped] == 0.0)
+    np.testing.assert_array_equal(np.delete(r_left, dropped), np.delete(r, dropped))
+
+
 @pytest.fixture(scope="module")
 def bench_30():
     return check.bench(load_posterior(), load_paper_data())

@@ -27,7 +27,7 @@ from cardiosoft.pump import POSTERIOR_FORMAT_VERSION, load, load_card
 from cardiosoft.scene import load_scene
 from cardiosoft.units import ml, mmHg
 from fit import fitting, pipeline
-from fit.posterior import blocks, laplace, nuts
+from fit.posterior import blocks, laplace, nuts, smc
 
 DRAWS = 256
 SEED = 0
@@ -120,27 +120,64 @@ def linearised_fit(path=None, progress=print) -> LinearisedFit:
     return LinearisedFit(model, card, scene, data, d, layout, lin, sizing, s0_ef, ef_loo)
 
 
-def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int, ef_draws=None):
+def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int, ef_draws=None,
+           joint_draws=None):
     """``n`` draws (n, p) in the fit's raw coordinates, truncated to the prior's support
     (positive coefficients, :func:`convexity_check`), and the fraction of proposals accepted.
 
     ``ef_draws``: (m >= n, p_ef) raw draws of the EF block from elsewhere (NUTS), in an order
     to take them in; the later blocks are drawn from ``lap``'s conditional given each
-    (:func:`fit.posterior.laplace.conditional_draws`). Else every block from ``lap``."""
+    (:func:`fit.posterior.laplace.conditional_draws`). ``joint_draws``: (k, p_joint) natural
+    draws of the mechanics+bench block given the EF law at its centre (SMC's), in the
+    conditional's place, moved with each EF draw by its linearised refit. Else every block
+    from ``lap``."""
     convex = convexity_check(layout)
     positive = layout.positive
+    ef = layout.blocks["ef"]
 
     def admissible(natural):  # of positive draws
         return convex(layout.raw(natural))
 
-    if ef_draws is None:
+    if ef_draws is None and joint_draws is None:
         natural_draws, accepted = laplace.draws(lap, n, seed, admissible, positive)
+        return layout.raw(natural_draws), accepted
+    if ef_draws is None:  # the EF law's Laplace, a pool as large as the draws' rejection allows
+        marginal = laplace.Laplace(lap.centre[ef], lap.transform[ef, ef], None, {})
+        natural_ef, _ = laplace.draws(marginal, laplace.MAX_DRAW_ROUNDS * n, seed,
+                                      positive=positive[ef])
     else:
-        ef = layout.blocks["ef"]
         natural_ef = layout.natural(ef_draws, ef)
-        natural_draws, accepted = laplace.conditional_draws(lap, ef, natural_ef, n, seed,
-                                                            admissible, positive)
+    natural_draws, accepted = laplace.conditional_draws(lap, ef, natural_ef, n, seed,
+                                                        admissible, positive, joint_draws)
     return layout.raw(natural_draws), accepted
+
+
+def joint_target(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, scene, keep=None):
+    """The mechanics+bench block's posterior given the EF law at the fit's optimum, as
+    :mod:`fit.posterior.smc` takes it: (potential of a batch of the block's natural
+    coordinates, one bench solve each over threads; the prior's support of such a batch).
+
+    The bench's periodic state by Newton shooting: the orbit itself, where beat after beat stops
+    at the scene's steady tolerance (the potentials differ by a median 5e-4 and at most 0.19
+    over 64 Laplace draws), at about half the cost."""
+    cols = laplace._spans(layout)[1]
+    full = blocks.joint_residuals(layout, d, s0, scene, steady="shooting", keep=keep)
+    potential = jax.jit(lambda theta: 0.5 * jnp.sum(full(theta) ** 2))
+    convex = convexity_check(layout)
+    positive = layout.positive[cols]
+    centre = np.asarray(layout.centre)
+
+    def raw(natural):  # (n, p_joint) -> (n, p), the EF law at the centre
+        theta = np.tile(centre, (len(natural), 1))
+        theta[:, cols] = layout.raw(natural, cols)
+        return theta
+
+    def inside(natural):
+        ok = np.all((natural > 0) | ~positive, axis=1)
+        ok[ok] = convex(raw(natural[ok]))
+        return ok
+
+    return (lambda natural: smc.threaded(potential)(raw(natural))), inside
 
 
 def nuts_ef(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, lap: laplace.Laplace,
@@ -228,18 +265,24 @@ def discrepancy_card(fit: LinearisedFit) -> dict:
 
 
 EF_SAMPLERS = ("nuts", "laplace")
+JOINT_SAMPLERS = ("smc", "laplace")
 
 
 def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: str = "nuts",
-            progress=print):
+            joint_sampler: str = "laplace", progress=print):
     """The posterior of the surrogate at ``path`` (default: the shipped one) and the bench
     scene: ``(arrays for the .npz, the posterior card, the Layout, the Laplace)``.
 
     ``ef_sampler``: ``"nuts"`` draws the EF block with NUTS (its Laplace is not close to it:
-    the card's ``nuts`` record) and raises if the chains did not mix; ``"laplace"`` draws every
-    block from the Laplace (seconds instead of minutes)."""
+    the card's ``nuts`` record) and raises if the chains did not mix; ``"laplace"`` draws it
+    from the Laplace (seconds instead of minutes). ``joint_sampler``: ``"smc"`` draws the
+    mechanics+bench block by tempered SMC given the EF law at its centre (its Laplace is not
+    close to it either: the card's ``smc`` record), moved with each EF draw by the Laplace's
+    linearised refit; ``"laplace"`` from the Laplace's conditional."""
     if ef_sampler not in EF_SAMPLERS:
         raise ValueError(f"ef_sampler {ef_sampler!r}: one of {EF_SAMPLERS}")
+    if joint_sampler not in JOINT_SAMPLERS:
+        raise ValueError(f"joint_sampler {joint_sampler!r}: one of {JOINT_SAMPLERS}")
     fit = linearised_fit(path, progress)
     model, card, scene, data, d, layout, lin, sizing = (
         fit.model, fit.card, fit.scene, fit.data, fit.d, fit.layout, fit.lin, fit.sizing
@@ -258,7 +301,17 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: st
                 "NUTS on the EF block did not mix (R-hat, bulk ESS or divergences: "
                 f"{ef_run.record()['criteria']}); no posterior written"
             )
-    theta_draws, accepted = sample(layout, lap, n_draws, seed, ef_draws)
+    joint_draws, joint_run = None, None
+    if joint_sampler == "smc":
+        cols = laplace._spans(layout)[1]
+        progress(f"tempered SMC of the {laplace.JOINT} block ({n_draws} particles)")
+        potential, inside = joint_target(layout, d, sizing.s0, scene)
+        joint_run = smc.run(potential, lap.centre[cols], lap.transform[cols, cols], inside,
+                            particles=n_draws, seed=seed, progress=progress)
+        # resampling leaves copies side by side: in a seeded order, the pairing with the EF
+        # draws is random
+        joint_draws = np.random.default_rng(seed).permutation(joint_run.draws)
+    theta_draws, accepted = sample(layout, lap, n_draws, seed, ef_draws, joint_draws)
     pumps = jax.vmap(layout.pump)(jnp.asarray(theta_draws))
     arrays = {
         "names": np.asarray(layout.names),
@@ -305,14 +358,20 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: st
             "other draws, in a seeded order, replacing those the support rejects); "
             if ef_run is not None else "the EF block from its Laplace approximation; "
         ) + (
+            "the mechanics+bench block by tempered SMC (fit.posterior.smc: from its Laplace, "
+            "given the EF law at the fit's optimum; 'joint_smc' below), each particle moved with"
+            " its EF draw by the Laplace's linearised refit (fit.posterior.laplace); "
+            if joint_run is not None else
             "the mechanics+bench block from the Gauss-Newton Laplace approximation of the cut "
-            "posterior (fit.posterior.laplace) given each EF draw, at the fit's optimum: the "
-            "shipped weights, the card's rig and the bench scene's calibrated numbers; numpy's "
-            "default generator. The posterior is a density over the natural coordinates (the "
-            "positive coefficients themselves, the EF law's quadratic rate at Omega 0 and 6), "
-            "its priors functions of them"
+            "posterior (fit.posterior.laplace) given each EF draw; "
+        ) + (
+            "the Laplace at the fit's optimum: the shipped weights, the card's rig and the "
+            "bench scene's calibrated numbers; numpy's default generator. The posterior is a "
+            "density over the natural coordinates (the positive coefficients themselves, the EF"
+            " law's quadratic rate at Omega 0 and 6), its priors functions of them"
         ),
         "ef_nuts": None if ef_run is None else ef_run.record(),
+        "joint_smc": None if joint_run is None else joint_run.record(),
         "independence": (
             "a cut posterior: Table I informs only the EF law; the mechanics and the bench's four"
             " are one block conditional on it (its linearised refit as the EF law moves), "

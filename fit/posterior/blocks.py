@@ -351,6 +351,10 @@ def smallest_stiffness(layout: Layout):
     return lambda theta: jnp.min(pipeline.stiffness_grid(layout.pump(theta), omegas, cs, n_v))
 
 
+FEM_ROWS = ("efficiency_helical", "efficiency_longitudinal", "mech_ratio", "hydraulic_ratio")
+"""The FEM comparisons among :func:`mechanics_fixed_rows`, in their order."""
+
+
 def mechanics_fixed_rows(layout: Layout, d: Data):
     """theta -> the mechanics block's rows whose sigmas do not depend on the discrepancy: the
     support (0 inside, +inf outside; module docstring), the FEM comparisons (the fit's own
@@ -366,7 +370,7 @@ def mechanics_fixed_rows(layout: Layout, d: Data):
         return jnp.concatenate(
             [
                 jnp.where(inside, 0.0, jnp.inf)[None],
-                jnp.stack(
+                jnp.stack(  # FEM_ROWS
                     [
                         (fem.efficiency_helical - t.fem_efficiency_helical) / 0.02,
                         (fem.efficiency_longitudinal - t.fem_efficiency_longitudinal) / 0.02,
@@ -391,12 +395,17 @@ def mechanics_sds(d: Data, s0: Sigmas) -> MechanicsOutputs:
     )
 
 
-def joint_residuals(layout: Layout, d: Data, s0: Sigmas, scene):
+def joint_residuals(layout: Layout, d: Data, s0: Sigmas, scene, steady: str = "beats",
+                    keep=None):
     """r(theta) of the mechanics and bench block (:data:`fit.posterior.laplace.JOINT`): the
     quasi-static SVs and peak forces over their sds, :func:`mechanics_fixed_rows`, then
-    :func:`bench_residuals`. The paper's work M enters once, as the dynamic work."""
+    :func:`bench_residuals`. The paper's work M enters once, as the dynamic work.
+
+    ``steady``: how the bench's periodic state is reached (:func:`cardiosoft.batch.solve_beats`);
+    ``keep``: which afterloads keep their four data rows (bools; default all), the others read
+    0 whatever their solve gave (the leave-one-afterload-out check)."""
     outputs, fixed = mechanics_outputs(layout, d), mechanics_fixed_rows(layout, d)
-    bench = bench_residuals(layout, d, s0, scene)
+    bench = bench_residuals(layout, d, s0, scene, steady)
     sds = mechanics_sds(d, s0)
     t = d.t
 
@@ -411,7 +420,13 @@ def joint_residuals(layout: Layout, d: Data, s0: Sigmas, scene):
             ]
         )
 
-    return residual
+    if keep is None or np.all(keep):
+        return residual
+    keep = np.asarray(keep, bool)
+    others = [len(layout.prior_rows(block)[0]) for block in ("mechanics", "bench")]
+    mask = np.concatenate([keep, keep, np.ones(1 + len(FEM_ROWS) + others[0], bool), keep, keep,
+                           np.ones(others[1], bool)])
+    return lambda theta: jnp.where(mask, residual(theta), 0.0)
 
 
 class BenchOutputs(NamedTuple):
@@ -443,7 +458,7 @@ def bench_config():
     )
 
 
-def bench_outputs(layout: Layout, scene, heads):
+def bench_outputs(layout: Layout, scene, heads, steady: str = "beats"):
     """theta -> :class:`BenchOutputs` at the column heads (Pa), one batched solve."""
     from cardiosoft.batch import solve_beats
     from cardiosoft.posterior import ENSEMBLE_MAX_BEATS
@@ -461,6 +476,7 @@ def bench_outputs(layout: Layout, scene, heads):
             save="metrics",
             pump=layout.pump(theta),
             config=config,
+            steady=steady,
         )
         m = out.metrics
         ok = out.succeeded & out.steady
@@ -478,9 +494,9 @@ def bench_sds(d: Data, s0: Sigmas):
     )
 
 
-def bench_residuals(layout: Layout, d: Data, s0: Sigmas, scene):
+def bench_residuals(layout: Layout, d: Data, s0: Sigmas, scene, steady: str = "beats"):
     """r_bench(theta): dynamic SVs and works over their sds, then the bench priors."""
-    outputs = bench_outputs(layout, scene, d.t.afterload)
+    outputs = bench_outputs(layout, scene, d.t.afterload, steady)
     sv_sd, work_sd = bench_sds(d, s0)
     idx, mu, sd = layout.prior_rows("bench")
 

@@ -160,27 +160,38 @@ LOAO_DRAWS = 64
 
 
 def leave_one_afterload_out(fit, *, n_draws: int = LOAO_DRAWS, seed: int = 0,
-                            progress=print) -> BenchCheck:
-    """Each of the paper's three afterloads left out in turn: its four data rows (static SV,
-    peak force, dynamic SV, work) dropped from the mechanics and bench block, the block
-    refitted by one Gauss-Newton step and its Laplace recomputed
-    (:func:`fit.posterior.laplace.laplace` with ``keep``), ``n_draws`` drawn and solved at the
-    left-out afterload, its dynamic SV and peak force predicted. The discrepancy keeps its
-    sizes (they saw every row), but the left-out head is now outside the calibrated range of
-    the other two where it is an end one (30 or 90 mmHg): its band grows as a prediction's
-    would. ``fit``: :func:`fit.posterior.artifact.linearised_fit`."""
-    from fit.posterior import artifact, laplace
+                            joint_sampler: str = "laplace", progress=print) -> BenchCheck:
+    """Each of the paper's three afterloads left out in turn: its four data rows (static SV, peak
+    force, dynamic SV, work) dropped from the mechanics and bench block, the block refitted by
+    one Gauss-Newton step and its Laplace recomputed (:func:`fit.posterior.laplace.laplace` with
+    ``keep``), ``n_draws`` drawn and solved at the left-out afterload, its dynamic SV and peak
+    force predicted. ``joint_sampler``: the block drawn as the shipped posterior draws it: by
+    tempered SMC from that Laplace (``"smc"``, :func:`fit.posterior.artifact.joint_target`
+    without the rows) or from the Laplace itself. The discrepancy keeps its sizes (they saw
+    every row), but the left-out head is now outside the calibrated range of the other two where
+    it is an end one (30 or 90 mmHg): its band grows as a prediction's would. ``fit``:
+    :func:`fit.posterior.artifact.linearised_fit`."""
+    from fit.posterior import artifact, laplace, smc
 
     n = len(fit.d.t.afterload)
+    cols = laplace._spans(fit.layout)[1]
     heads = np.asarray(fit.data.fig10_bench["afterload_mmHg"], float)
     parts = []
     failed = 0
     for i in range(n):
         keep = np.arange(n) != i
-        progress(f"  leave out {heads[i]:g} mmHg: refit, Laplace, {n_draws} draws at 30 bpm")
+        progress(f"  leave out {heads[i]:g} mmHg: refit, Laplace, {n_draws} draws "
+                 f"({joint_sampler}) at 30 bpm")
         lap = laplace.laplace(fit.layout, fit.d, fit.lin, fit.sizing.s0, fit.layout.centre,
                               keep=keep)
-        theta, _ = artifact.sample(fit.layout, lap, n_draws, seed + i)
+        joint_draws = None
+        if joint_sampler == "smc":
+            potential, inside = artifact.joint_target(fit.layout, fit.d, fit.sizing.s0,
+                                                      fit.scene, keep)
+            run = smc.run(potential, lap.centre[cols], lap.transform[cols, cols], inside,
+                          particles=n_draws, seed=seed + i, progress=progress)
+            joint_draws = np.random.default_rng(seed + i).permutation(run.draws)
+        theta, _ = artifact.sample(fit.layout, lap, n_draws, seed + i, None, joint_draws)
         card = json.loads(json.dumps(artifact.discrepancy_card(fit)))
         card["discrepancy"]["distance"]["afterload_mmHg"] = [
             float(heads[keep].min()), float(heads[keep].max())

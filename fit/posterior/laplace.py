@@ -356,11 +356,15 @@ def _inside(batch, positive, admissible):
 
 
 def conditional_draws(lap: Laplace, given: slice, pool, n: int, seed: int, admissible=None,
-                      positive=None):
+                      positive=None, rest_pool=None):
     """``n`` draws (n, p) whose leading block ``given`` comes from ``pool`` (m, p_given), rows
     taken in order, in its natural coordinates, and whose later blocks come from the cut
     Laplace's conditional given it (the linearised refit as the given block moves, and its own
     covariance); and the fraction of proposals accepted.
+
+    ``rest_pool`` (k, p_rest): draws of the later blocks given the leading block at its centre
+    (SMC's, :mod:`fit.posterior.smc`), taken in turn (cyclically) in place of the conditional's
+    Gaussian; the linearised refit still moves them with the given block.
 
     ``admissible``, ``positive`` as in :func:`draws`: a whole draw outside the prior's support
     is rejected and the pool's next row proposed, so the support truncates the joint
@@ -372,13 +376,17 @@ def conditional_draws(lap: Laplace, given: slice, pool, n: int, seed: int, admis
     kept, proposed = [], 0
     while len(kept) < n and proposed < len(pool):
         values = pool[proposed:proposed + n - len(kept)]
-        proposed += len(values)
         z_given = np.linalg.solve(t[given, given], (values - lap.centre[given]).T).T
+        if rest_pool is None:
+            spread = (rng.standard_normal((len(values), rest.stop - rest.start))
+                      @ t[rest, rest].T)
+        else:
+            rows = np.arange(proposed, proposed + len(values)) % len(rest_pool)
+            spread = np.asarray(rest_pool, float)[rows] - lap.centre[rest]
+        proposed += len(values)
         batch = np.empty((len(values), len(lap.centre)))
         batch[:, given] = values
-        batch[:, rest] = (lap.centre[rest] + z_given @ t[rest, given].T
-                          + rng.standard_normal((len(values), rest.stop - rest.start))
-                          @ t[rest, rest].T)
+        batch[:, rest] = lap.centre[rest] + z_given @ t[rest, given].T + spread
         kept += list(batch[_inside(batch, positive, admissible)])
     if len(kept) < n:
         raise RuntimeError(
