@@ -99,6 +99,31 @@ def test_conditional_draws_follow_the_cut_posterior_given_the_first_block():
     assert np.all(kept[:, 0] == 0.7) and len(kept) == 20 and accepted < 1.0
 
 
+def test_conditional_draws_move_a_pool_of_the_later_blocks_with_the_first():
+    """``rest_pool``: draws of theta_b given theta_a at its centre (SMC's) stand in for the
+    conditional's Gaussian and move with theta_a by the linearised refit. For linear residuals
+    that is exact: a pool drawn from N(0, (B2^T B2)^-1) about the centre's refit gives, at a
+    given theta_a, the closed-form mean and covariance (4 standard errors, 10 %); the pool's
+    rows are taken in turn."""
+    rng = np.random.default_rng(1)
+    a, b1, b2 = rng.normal(size=(6, 2)), rng.normal(size=(5, 2)), rng.normal(size=(5, 3))
+    lap = laplace.cut_laplace(np.zeros(5), [a, np.hstack([b1, b2])],
+                              [slice(0, 2), slice(2, 5)])
+    cov = np.linalg.inv(b2.T @ b2)
+    n = 4000
+    rest_pool = rng.multivariate_normal(np.zeros(3), cov, size=n // 2)  # used twice over
+    given = np.array([0.7, -0.3])
+    out, accepted = laplace.conditional_draws(lap, slice(0, 2), np.tile(given, (n, 1)), n, 5,
+                                              rest_pool=rest_pool)
+    mean = np.linalg.lstsq(b2, -b1 @ given, rcond=None)[0]
+    assert accepted == 1.0
+    np.testing.assert_allclose(out[: n // 2, 2:] - mean, rest_pool, atol=1e-12)
+    np.testing.assert_allclose(out[n // 2:, 2:], out[: n // 2, 2:], atol=1e-12)
+    se = np.sqrt(np.diag(cov) / (n // 2))
+    assert np.all(np.abs(out[:, 2:].mean(axis=0) - mean) <= 4 * se)
+    np.testing.assert_allclose(np.cov(out[:, 2:].T), cov, rtol=0.1, atol=0.1 * cov.max())
+
+
 def test_linearised_leave_one_out_is_exact_for_a_linear_model():
     """One Gauss-Newton step without row i is the exact refit of a linear model: the left-out
     errors equal those of least-squares refits without each row."""
