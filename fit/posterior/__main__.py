@@ -208,20 +208,25 @@ def _bench_bands(b, result) -> dict:
     import jax.numpy as jnp
 
     from cardiosoft.scene import load_scene
+    from cardiosoft.units import ml, mmHg
     from fit.posterior import artifact, blocks, laplace, smc
 
     cols = b.spans[laplace.JOINT]
     outputs = blocks.bench_outputs(b.layout, load_scene(artifact.SCENE), b.d.t.afterload,
                                    steady="shooting")
-    one = jax.jit(lambda t: jnp.concatenate([outputs(t).dynamic_sv * 1e6,
-                                             outputs(t).peak_force]))
+
+    @jax.jit
+    def one(theta):
+        o = outputs(theta)
+        return jnp.concatenate([o.dynamic_sv / ml, o.peak_force])
+
     smc_draws = result.draws
     lap = laplace.Laplace(b.natural_centre[cols], b.transform[cols, cols], None, {})
     convex = artifact.convexity_check(b.layout)
     lap_draws, _ = laplace.draws(
         lap, len(smc_draws), 0,
         lambda y: np.asarray(convex(b.raw_with(laplace.JOINT, y))), b.layout.positive[cols])
-    heads = [f"{h / 133.322:.0f}" for h in np.asarray(b.d.t.afterload)]
+    heads = [f"{h / mmHg:.0f}" for h in np.asarray(b.d.t.afterload)]
     bands = {}
     for name, natural in (("smc", smc_draws), ("laplace", lap_draws)):
         out = smc.threaded(one)(b.raw_with(laplace.JOINT, natural))
@@ -398,6 +403,9 @@ def main(argv=None) -> int:
         if args.importance:
             return _importance(args)
         if args.smc:
+            if args.runs < 2 or args.particles < 16:
+                raise ValueError(f"--runs {args.runs}, --particles {args.particles}: at least 2 "
+                                 "runs (they are compared) of 16 particles")
             return _smc(args)
         if args.check:
             return _check(args)
