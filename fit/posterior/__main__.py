@@ -194,16 +194,16 @@ def _smc(args) -> int:
     print(f"  {solves} bench solves, {seconds:.0f} s; the runs agree (R-hat, ESS): "
           f"{'yes' if result.mixed else 'NO'}; Laplace sds within {smc.SD_RATIO_TOL:.0%}: "
           f"{'yes' if result.passed else 'NO'}")
-    record = result.record() | _bench_bands(b, result)
+    record = result.record() | _bench_bands(b, result, inside)
     _record(b.card_path, "smc", {laplace.JOINT: record})
     print(f"recorded in {b.card_path}")
     return 0 if result.passed else 1
 
 
-def _bench_bands(b, result) -> dict:
+def _bench_bands(b, result, inside) -> dict:
     """What the block's sampler changes in its predictions: the 30-bpm bench's dynamic SV and
     peak force, 95 % of the draws (no discrepancy), from SMC's draws and from as many of the
-    Laplace's."""
+    Laplace's, truncated to the support ``inside`` (:func:`fit.posterior.artifact.joint_target`)."""
     import jax
     import jax.numpy as jnp
 
@@ -222,10 +222,7 @@ def _bench_bands(b, result) -> dict:
 
     smc_draws = result.draws
     lap = laplace.Laplace(b.natural_centre[cols], b.transform[cols, cols], None, {})
-    convex = artifact.convexity_check(b.layout)
-    lap_draws, _ = laplace.draws(
-        lap, len(smc_draws), 0,
-        lambda y: np.asarray(convex(b.raw_with(laplace.JOINT, y))), b.layout.positive[cols])
+    lap_draws, _ = laplace.draws(lap, len(smc_draws), 0, inside)
     heads = [f"{h / mmHg:.0f}" for h in np.asarray(b.d.t.afterload)]
     bands = {}
     for name, natural in (("smc", smc_draws), ("laplace", lap_draws)):
