@@ -66,8 +66,8 @@ but left the ridge narrower (log E_u sd 0.29 against 0.37) and the runs further 
 1.027): a particle's correlation with its start does not show how far the population has spread
 along the ridge, and the extra moves this rule forces are what spread it. Nor do 25 suffice:
 80 more rounds at ``b = 1`` from 128 of the narrowest run's particles kept widening it (log E_u
-sd 0.32 to 0.39, fold compliance 0.21 to 0.28, mean +0.14) and had not settled (measured
-2026-12-03)."""
+sd 0.32 to 0.39, fold compliance 0.21 to 0.28, mean +0.14) and had not settled; 60 from the
+widest run's kept it at 0.41-0.45 (measured 2026-12-03)."""
 MAX_MOVES = 25
 """Most move rounds a stage (each two proposals a particle: one independent, one random-walk;
 PyMC's SMC allows 25)."""
