@@ -1,6 +1,7 @@
 """Tempered SMC (fit.posterior.smc), the check of the mechanics and bench block's Laplace
 (issue #24), on targets whose moments are known in closed form: a Gaussian truncated at zero
-(scipy's truncnorm), reached from a reference that is too wide and centred elsewhere."""
+(scipy's truncnorm), reached from a reference that is too wide and centred elsewhere, directly
+and after a pilot run."""
 
 import math
 
@@ -68,8 +69,25 @@ def test_smc_reaches_a_truncated_gaussian_from_a_wide_laplace():
     assert result.mixed, result.record()
     assert np.all(np.abs(draws.mean(axis=0) - mean) <= 4 * sd / np.sqrt(ess))
     assert np.all(np.abs(draws.std(axis=0, ddof=1) - sd) <= 4 * sd / np.sqrt(2 * ess))
-    assert sum(r.evaluations for r in result.runs) == sum(calls)
+    assert sum(r.evaluations for r in (result.pilot, *result.runs)) == sum(calls)
     assert all(r.stages[-1].beta == 1.0 for r in result.runs)
+
+
+def test_runs_after_a_pilot_start_where_the_posterior_is():
+    """The compared runs start from the pilot's Gaussian (widened 1.3x), not from the wide,
+    misplaced Laplace: the pilot needs several stages of tempering (3 with this seed), each run
+    after it 1 (the weights from a reference that covers the target keep half their ESS in one
+    step); without the pilot the runs need several, as the pilot did."""
+    kwargs = dict(runs=2, particles=400, seed=2, progress=lambda m: None)
+    with_pilot = smc.check(_target_potential, np.zeros(2), 1.5 * np.eye(2), _inside, ("a", "b"),
+                           **kwargs)
+    assert len(with_pilot.pilot.stages) >= 2
+    assert [len(r.stages) for r in with_pilot.runs] == [1, 1]
+    assert with_pilot.record()["reference"].startswith("a pilot run's Gaussian")
+    without = smc.check(_target_potential, np.zeros(2), 1.5 * np.eye(2), _inside, ("a", "b"),
+                        pilot=False, **kwargs)
+    assert without.pilot is None
+    assert all(len(r.stages) >= 2 for r in without.runs)
 
 
 def test_smc_rejects_failed_solves():
