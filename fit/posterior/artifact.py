@@ -304,10 +304,13 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: st
     joint_draws, joint_run = None, None
     if joint_sampler == "smc":
         cols = laplace._spans(layout)[1]
-        progress(f"tempered SMC of the {laplace.JOINT} block ({n_draws} particles)")
+        progress(f"tempered SMC of the {laplace.JOINT} block ({n_draws} particles): a pilot "
+                 "from the Laplace, then the draws from the pilot's Gaussian")
         potential, inside = joint_target(layout, d, sizing.s0, scene)
-        joint_run = smc.run(potential, lap.centre[cols], lap.transform[cols, cols], inside,
-                            particles=n_draws, seed=seed, progress=progress)
+        joint_pilot = smc.run(potential, lap.centre[cols], lap.transform[cols, cols], inside,
+                              particles=n_draws, seed=seed, progress=progress)
+        joint_run = smc.run(potential, *smc.reference(joint_pilot), inside, particles=n_draws,
+                            seed=seed + 1, progress=progress)
         # resampling leaves copies side by side: in a seeded order, the pairing with the EF
         # draws is random
         joint_draws = np.random.default_rng(seed).permutation(joint_run.draws)
@@ -358,8 +361,9 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: st
             "other draws, in a seeded order, replacing those the support rejects); "
             if ef_run is not None else "the EF block from its Laplace approximation; "
         ) + (
-            "the mechanics+bench block by tempered SMC (fit.posterior.smc: from its Laplace, "
-            "given the EF law at the fit's optimum; 'joint_smc' below), each particle moved with"
+            "the mechanics+bench block by tempered SMC (fit.posterior.smc: from the Gaussian "
+            "of a pilot run from its Laplace, given the EF law at the fit's optimum; 'joint_smc'"
+            " below), each particle moved with"
             " its EF draw by the Laplace's linearised refit (fit.posterior.laplace); "
             if joint_run is not None else
             "the mechanics+bench block from the Gauss-Newton Laplace approximation of the cut "
@@ -371,7 +375,8 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: st
             " law's quadratic rate at Omega 0 and 6), its priors functions of them"
         ),
         "ef_nuts": None if ef_run is None else ef_run.record(),
-        "joint_smc": None if joint_run is None else joint_run.record(),
+        "joint_smc": None if joint_run is None else
+        joint_run.record() | {"pilot": joint_pilot.record()},
         "independence": (
             "a cut posterior: Table I informs only the EF law; the mechanics and the bench's four"
             " are one block conditional on it (its linearised refit as the EF law moves), "

@@ -166,11 +166,12 @@ def leave_one_afterload_out(fit, *, n_draws: int = LOAO_DRAWS, seed: int = 0,
     one Gauss-Newton step and its Laplace recomputed (:func:`fit.posterior.laplace.laplace` with
     ``keep``), ``n_draws`` drawn and solved at the left-out afterload, its dynamic SV and peak
     force predicted. ``joint_sampler``: the block drawn as the shipped posterior draws it: by
-    tempered SMC from that Laplace (``"smc"``, :func:`fit.posterior.artifact.joint_target`
-    without the rows) or from the Laplace itself. The discrepancy keeps its sizes (they saw
-    every row), but the left-out head is now outside the calibrated range of the other two where
-    it is an end one (30 or 90 mmHg): its band grows as a prediction's would. ``fit``:
-    :func:`fit.posterior.artifact.linearised_fit`."""
+    tempered SMC (``"smc"``, :func:`fit.posterior.artifact.joint_target` without the rows: a
+    pilot from that Laplace, then a run from the pilot's Gaussian, as
+    :func:`fit.posterior.artifact.compute` draws it) or from the Laplace itself. The
+    discrepancy keeps its sizes (they saw every row), but the left-out head is now outside the
+    calibrated range of the other two where it is an end one (30 or 90 mmHg): its band grows as
+    a prediction's would. ``fit``: :func:`fit.posterior.artifact.linearised_fit`."""
     from fit.posterior import artifact, laplace, smc
 
     n = len(fit.d.t.afterload)
@@ -188,8 +189,10 @@ def leave_one_afterload_out(fit, *, n_draws: int = LOAO_DRAWS, seed: int = 0,
         if joint_sampler == "smc":
             potential, inside = artifact.joint_target(fit.layout, fit.d, fit.sizing.s0,
                                                       fit.scene, keep)
-            run = smc.run(potential, lap.centre[cols], lap.transform[cols, cols], inside,
-                          particles=n_draws, seed=seed + i, progress=progress)
+            pilot = smc.run(potential, lap.centre[cols], lap.transform[cols, cols], inside,
+                            particles=n_draws, seed=seed + i, progress=progress)
+            run = smc.run(potential, *smc.reference(pilot), inside, particles=n_draws,
+                          seed=seed + n + i, progress=progress)
             joint_draws = np.random.default_rng(seed + i).permutation(run.draws)
         theta, _ = artifact.sample(fit.layout, lap, n_draws, seed + i, None, joint_draws)
         card = json.loads(json.dumps(artifact.discrepancy_card(fit)))
