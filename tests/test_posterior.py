@@ -446,9 +446,9 @@ def ef_sbc():
 def _undercovered(result, names):
     """The quantities whose 95 % intervals cover the truth at a rate whose Wilson interval
     stays below 0.95."""
-    n = len(result.ranks)
-    return [name for name, cov in zip(result.names, result.coverage, strict=True)
-            if name in names and check.wilson(round(float(cov) * n), n)[1] < 0.95]
+    return [name for name, cov, n in zip(result.names, result.coverage, result.ranked,
+                                         strict=True)
+            if name in names and check.wilson(round(float(cov) * n), int(n))[1] < 0.95]
 
 
 @pytest.mark.slow

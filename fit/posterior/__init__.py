@@ -7,6 +7,7 @@
     python -m fit.posterior --smc      # tempered SMC of the mechanics+bench block
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
     python -m fit.posterior --sbc      # simulation-based calibration of the EF block
+    python -m fit.posterior --sbc --block mechanics+bench  # ... of the rest's Laplace
     python -m fit.posterior --sobol    # Sobol indices (SALib) against the linearised shares
 
 - :mod:`fit.posterior.blocks`: the parameters (the fit's raw coordinates) and each block's
@@ -21,7 +22,8 @@
   the check of its Laplace;
 - :mod:`fit.posterior.check`: the held-out checks (Table II, the 30-bpm bench, one afterload
   left out at a time);
-- :mod:`fit.posterior.sbc`: simulation-based calibration of the EF block;
+- :mod:`fit.posterior.sbc`: simulation-based calibration of the EF block, and of the
+  mechanics+bench block's Laplace at a linearised refit;
 - :mod:`fit.posterior.sobol`: Sobol indices against the linearised variance shares.
 
 The draws are carried through the solve by :func:`cardiosoft.pump.load_posterior` and

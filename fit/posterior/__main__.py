@@ -6,6 +6,7 @@
     python -m fit.posterior --smc      # the mechanics+bench block by tempered SMC
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
     python -m fit.posterior --sbc      # simulation-based calibration of the EF block
+    python -m fit.posterior --sbc --block mechanics+bench  # ... of the rest's Laplace
     python -m fit.posterior --sobol    # Sobol indices (SALib) against the linearised shares
 
 Run from the repository root after ``python -m fit`` and ``python -m fit.bench`` (the bench
@@ -289,6 +290,37 @@ def _check(args) -> int:
 
 
 def _sbc(args) -> int:
+    from cardiosoft.pump import artifact_path
+    from fit.posterior import artifact, sbc
+
+    progress = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
+    _, js = artifact.posterior_paths(artifact_path(args.artifact))
+    start = time.perf_counter()
+    control = None
+    if args.block == "ef":
+        replicates = args.replicates or sbc.REPLICATES
+        result = _sbc_ef(args, replicates, progress)
+    else:
+        replicates = args.replicates or sbc.JOINT_REPLICATES
+        result, control = sbc.run_joint(
+            artifact.linearised_fit(args.artifact, progress=progress), replicates=replicates,
+            seed=args.seed, progress=progress)
+    print(result.table())
+    record = {
+        "replicates": replicates, "draws": sbc.DRAWS, "seed": args.seed,
+        "seconds": round(time.perf_counter() - start, 1), "failed_refits": result.failed,
+        "quantities": result.record(),
+    }
+    if control is not None:
+        print(control.table())
+        record["control_linearised_rows"] = {"failed_refits": control.failed,
+                                             "quantities": control.record()}
+    _record(js, "sbc_ef" if args.block == "ef" else "sbc_joint", record)
+    print(f"recorded in {js}")
+    return 0
+
+
+def _sbc_ef(args, replicates: int, progress):
     from cardiosoft import datasets
     from cardiosoft.pump import artifact_path, load, load_card, load_posterior
     from cardiosoft.scene import load_scene
@@ -296,7 +328,7 @@ def _sbc(args) -> int:
     from fit.posterior import artifact, blocks, sbc
 
     post = load_posterior(args.artifact)
-    npz, js = artifact.posterior_paths(artifact_path(args.artifact))
+    npz, _ = artifact.posterior_paths(artifact_path(args.artifact))
     model, card = load(args.artifact), load_card(args.artifact)
     layout = blocks.Layout(model, fitting.rig_from_card(card), load_scene(artifact.SCENE))
     cols = layout.blocks["ef"]
@@ -305,22 +337,8 @@ def _sbc(args) -> int:
     data = datasets.load_paper_data()
     s0 = blocks.Sigmas(post.card["discrepancy"]["ef_volume"]["s0"]
                        / float(model.unloaded_volume), 0.0, 0.0, 0.0, 0.0)
-    start = time.perf_counter()
-    result = sbc.run(layout, blocks.training_data(data), s0, lap_ef, data,
-                     replicates=args.replicates, seed=args.seed,
-                     progress=lambda m: print(m, file=sys.stderr, flush=True))
-    print(result.table())
-    _record(js, "sbc_ef", {
-        "replicates": args.replicates, "draws": sbc.DRAWS, "seed": args.seed,
-        "seconds": round(time.perf_counter() - start, 1), "failed_refits": result.failed,
-        "quantities": {n: {"p_uniform": float(result.p_values[i]),
-                           "mean_rank": float(result.mean_rank[i]),
-                           "coverage_50": float(result.coverage_50[i]),
-                           "coverage_95": float(result.coverage[i])}
-                       for i, n in enumerate(result.names)},
-    })
-    print(f"recorded in {js}")
-    return 0
+    return sbc.run(layout, blocks.training_data(data), s0, lap_ef, data,
+                   replicates=replicates, seed=args.seed, progress=progress)
 
 
 def _sobol(args) -> int:
@@ -349,7 +367,7 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     from cardiosoft.files import refuse_overwrite
     from cardiosoft.pump import artifact_path
-    from fit.posterior import artifact, importance, nuts, smc
+    from fit.posterior import artifact, importance, laplace, nuts, sbc, smc
 
     parser = argparse.ArgumentParser(
         prog="python -m fit.posterior", description=__doc__.split("\n")[0]
@@ -386,8 +404,12 @@ def main(argv=None) -> int:
                         "for every particle)")
     parser.add_argument("--check", action="store_true", help="held-out checks of the bands")
     parser.add_argument("--sbc", action="store_true",
-                        help="simulation-based calibration of the EF block (fit.posterior.sbc)")
-    parser.add_argument("--replicates", type=int, default=200, help="replicates for --sbc")
+                        help="simulation-based calibration of a block (fit.posterior.sbc)")
+    parser.add_argument("--block", choices=("ef", laplace.JOINT), default="ef",
+                        help="the block --sbc calibrates (default: ef)")
+    parser.add_argument("--replicates", type=int,
+                        help=f"replicates for --sbc (default {sbc.REPLICATES} for ef, "
+                        f"{sbc.JOINT_REPLICATES} for {laplace.JOINT})")
     parser.add_argument("--sobol", action="store_true",
                         help="Sobol indices (SALib) of the 60-bpm bench against the linearised "
                         "shares of --explain (fit.posterior.sobol)")
@@ -407,6 +429,8 @@ def main(argv=None) -> int:
         if args.check:
             return _check(args)
         if args.sbc:
+            if args.replicates is not None and args.replicates < 2:
+                raise ValueError(f"--replicates {args.replicates}: at least 2")
             return _sbc(args)
         if args.sobol:
             return _sobol(args)
