@@ -379,9 +379,10 @@ def main(argv=None) -> int:
     parser.add_argument("--ef-sampler", choices=artifact.EF_SAMPLERS, default="nuts",
                         help="how the EF block is drawn (default nuts, about 2 min; laplace: "
                         "seconds, not close to the posterior)")
-    parser.add_argument("--joint-sampler", choices=artifact.JOINT_SAMPLERS, default="laplace",
-                        help="how the mechanics+bench block is drawn (laplace: seconds; smc: "
-                        "tempered SMC, minutes, the --smc check's sampler)")
+    parser.add_argument("--joint-sampler", choices=artifact.JOINT_SAMPLERS, default="smc",
+                        help="how the mechanics+bench block is drawn (default smc: tempered "
+                        "SMC, the --smc check's sampler, about 25 min; laplace: seconds, not "
+                        "close to the posterior)")
     parser.add_argument("--nuts", action="store_true",
                         help="NUTS on the EF block against its Laplace (fit.posterior.nuts)")
     parser.add_argument("--chains", type=int, default=nuts.CHAINS)
@@ -436,11 +437,15 @@ def main(argv=None) -> int:
             return _sobol(args)
         if args.draws < 2:
             raise ValueError(f"--draws {args.draws}: at least 2")
-        npz, _ = artifact.posterior_paths(artifact_path(args.artifact))
+        npz, js = artifact.posterior_paths(artifact_path(args.artifact))
         refuse_overwrite(npz, args.force)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    old = None  # the posterior being replaced: its Laplace's records may carry over
+    if npz.exists() and js.exists():
+        with np.load(npz, allow_pickle=False) as f:
+            old = (json.loads(js.read_text()), {k: f[k] for k in f.files})
     start = time.perf_counter()
     try:
         arrays, pcard, _, _ = artifact.compute(
@@ -452,6 +457,11 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 1
     pcard["seconds"] = round(time.perf_counter() - start, 1)
+    if old is not None:
+        kept = artifact.carried_records(*old, arrays)
+        pcard |= kept
+        print(f"kept the unchanged Laplace's records: {', '.join(kept) or 'none'}",
+              file=sys.stderr)
     npz, js = artifact.write(args.artifact, arrays, pcard)
     _print_parameters(pcard)
     _print_discrepancy(pcard)

@@ -269,16 +269,17 @@ JOINT_SAMPLERS = ("smc", "laplace")
 
 
 def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: str = "nuts",
-            joint_sampler: str = "laplace", progress=print):
+            joint_sampler: str = "smc", progress=print):
     """The posterior of the surrogate at ``path`` (default: the shipped one) and the bench
     scene: ``(arrays for the .npz, the posterior card, the Layout, the Laplace)``.
 
     ``ef_sampler``: ``"nuts"`` draws the EF block with NUTS (its Laplace is not close to it:
     the card's ``nuts`` record) and raises if the chains did not mix; ``"laplace"`` draws it
     from the Laplace (seconds instead of minutes). ``joint_sampler``: ``"smc"`` draws the
-    mechanics+bench block by tempered SMC given the EF law at its centre (its Laplace is not
-    close to it either: the card's ``smc`` record), moved with each EF draw by the Laplace's
-    linearised refit; ``"laplace"`` from the Laplace's conditional."""
+    mechanics+bench block by tempered SMC given the EF law at its centre (a pilot run from its
+    Laplace, then a run from the pilot's Gaussian, about 25 min on 2 cores: its Laplace is not
+    close to it either, the card's ``smc`` and ``sbc_joint`` records), moved with each EF draw
+    by the Laplace's linearised refit; ``"laplace"`` from the Laplace's conditional (seconds)."""
     if ef_sampler not in EF_SAMPLERS:
         raise ValueError(f"ef_sampler {ef_sampler!r}: one of {EF_SAMPLERS}")
     if joint_sampler not in JOINT_SAMPLERS:
@@ -442,6 +443,24 @@ TABLE2_MEASUREMENT_NOTE = (
     "not in the paper: its own repeatability of a measured volume, the pooled SD of the static "
     "SV triplicates (2.6, 1.2, 1.2 ml); added only to predict a new measurement"
 )
+
+
+LAPLACE_RECORDS = ("nuts", "importance", "smc", "sbc_ef", "sbc_joint", "sobol")
+"""The posterior card's records that check the Laplace approximation (or sample its whitened
+coordinates) and not the shipped draws: ``--nuts``, ``--importance``, ``--smc``, ``--sbc`` and
+``--sobol``'s. ``checks`` (``--check``) is the shipped draws' and is not among them."""
+
+
+def carried_records(old_card: dict, old_arrays, arrays: dict) -> dict:
+    """The :data:`LAPLACE_RECORDS` of ``old_card`` that a recomputation keeps: all of them where
+    its Laplace (``centre``, ``natural_centre``, ``transform`` of the .npz) is the old one to
+    1e-6 relative (the same fit, recomputed: what they checked has not moved), none else."""
+    same = all(
+        np.shape(old_arrays[k]) == np.shape(arrays[k])
+        and np.allclose(old_arrays[k], arrays[k], rtol=1e-6, atol=1e-12)
+        for k in ("centre", "natural_centre", "transform")
+    )
+    return {k: old_card[k] for k in LAPLACE_RECORDS if same and k in old_card}
 
 
 def write(path, arrays: dict, pcard: dict) -> tuple[Path, Path]:
