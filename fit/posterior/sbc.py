@@ -20,8 +20,9 @@ synthetic data come from the surrogate. The likelihood is the fit's soft-L1 one 
 is Gaussian, so small departures in the tails are expected.
 
 **The mechanics and bench block** (:func:`run_joint`): a refit through diffrax per replicate
-would take minutes, so the replicate's posterior is what the shipped one is, the Laplace at a
-linearised refit: the truth drawn from the shipped Laplace of the block (given the EF law at the
+would take minutes, so the replicate's posterior is the block's Laplace at a linearised refit
+(what ``--joint-sampler laplace`` ships; the shipped draws are SMC's, a run per replicate would
+take 25 min): the truth drawn from the Laplace of the block (given the EF law at the
 fit's optimum, truncated to the prior's support), new data drawn from the *nonlinear* model at
 the truth (every whitened row ``r`` reads ``r(theta) - r(truth) - eps``, ``eps`` standard
 normal: the quasi-static and 30-bpm bench rows, the FEM comparisons and the priors'
