@@ -152,6 +152,15 @@ def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int, ef_dr
     return layout.raw(natural_draws), accepted
 
 
+def joint_raw(layout: blocks.Layout, natural) -> np.ndarray:
+    """Full raw parameter vectors (n, p) from the mechanics+bench block's natural coordinates
+    (n, p_joint), the EF law at the fit's optimum."""
+    cols = laplace._spans(layout)[1]
+    theta = np.tile(np.asarray(layout.centre, float), (len(natural), 1))
+    theta[:, cols] = layout.raw(natural, cols)
+    return theta
+
+
 def joint_target(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, scene, keep=None):
     """The mechanics+bench block's posterior given the EF law at the fit's optimum, as
     :mod:`fit.posterior.smc` takes it: (potential of a batch of the block's natural
@@ -165,19 +174,13 @@ def joint_target(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, scene
     potential = jax.jit(lambda theta: 0.5 * jnp.sum(full(theta) ** 2))
     convex = convexity_check(layout)
     positive = layout.positive[cols]
-    centre = np.asarray(layout.centre)
-
-    def raw(natural):  # (n, p_joint) -> (n, p), the EF law at the centre
-        theta = np.tile(centre, (len(natural), 1))
-        theta[:, cols] = layout.raw(natural, cols)
-        return theta
 
     def inside(natural):
         ok = np.all((natural > 0) | ~positive, axis=1)
-        ok[ok] = convex(raw(natural[ok]))
+        ok[ok] = convex(joint_raw(layout, natural[ok]))
         return ok
 
-    return (lambda natural: smc.threaded(potential)(raw(natural))), inside
+    return (lambda natural: smc.threaded(potential)(joint_raw(layout, natural))), inside
 
 
 def nuts_ef(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, lap: laplace.Laplace,
@@ -308,10 +311,10 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: st
         progress(f"tempered SMC of the {laplace.JOINT} block ({n_draws} particles): a pilot "
                  "from the Laplace, then the draws from the pilot's Gaussian")
         potential, inside = joint_target(layout, d, sizing.s0, scene)
-        joint_pilot = smc.run(potential, lap.centre[cols], lap.transform[cols, cols], inside,
-                              particles=n_draws, seed=seed, progress=progress)
-        joint_run = smc.run(potential, *smc.reference(joint_pilot), inside, particles=n_draws,
-                            seed=seed + 1, progress=progress)
+        joint_pilot, joint_run = smc.piloted(potential, lap.centre[cols],
+                                             lap.transform[cols, cols], inside,
+                                             particles=n_draws, seeds=(seed, seed + 1),
+                                             progress=progress)
         # resampling leaves copies side by side: in a seeded order, the pairing with the EF
         # draws is random
         joint_draws = np.random.default_rng(seed).permutation(joint_run.draws)

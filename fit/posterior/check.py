@@ -189,10 +189,9 @@ def leave_one_afterload_out(fit, *, n_draws: int = LOAO_DRAWS, seed: int = 0,
         if joint_sampler == "smc":
             potential, inside = artifact.joint_target(fit.layout, fit.d, fit.sizing.s0,
                                                       fit.scene, keep)
-            pilot = smc.run(potential, lap.centre[cols], lap.transform[cols, cols], inside,
-                            particles=n_draws, seed=seed + i, progress=progress)
-            run = smc.run(potential, *smc.reference(pilot), inside, particles=n_draws,
-                          seed=seed + n + i, progress=progress)
+            _, run = smc.piloted(potential, lap.centre[cols], lap.transform[cols, cols], inside,
+                                 particles=n_draws, seeds=(seed + i, seed + n + i),
+                                 progress=progress)
             joint_draws = np.random.default_rng(seed + i).permutation(run.draws)
         theta, _ = artifact.sample(fit.layout, lap, n_draws, seed + i, None, joint_draws)
         card = json.loads(json.dumps(artifact.discrepancy_card(fit)))

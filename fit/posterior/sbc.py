@@ -206,7 +206,6 @@ def run(layout: blocks.Layout, d: blocks.Data, s0: blocks.Sigmas, lap_ef, data, 
     return summarise(names, ranks, failed)
 
 
-
 def linearised(truth_law: laplace.Laplace, inside, residuals, jacobian, optimum, natural, slope,
                noisy, predictions, *, replicates: int, seed: int = 0, progress=print):
     """The SBC of a block's Laplace at a linearised refit (module docstring), on any model.
@@ -231,8 +230,8 @@ def linearised(truth_law: laplace.Laplace, inside, residuals, jacobian, optimum,
         r_new = r_star - r_truth - noisy * rng.standard_normal(len(r_star))
         refit = optimum - np.linalg.solve(gram, jacobian.T @ r_new)  # one Gauss-Newton step
         j_natural = jacobian / slope(refit)
-        cov = np.linalg.inv(j_natural.T @ j_natural)
-        lap = laplace.Laplace(natural(refit), np.linalg.cholesky(0.5 * (cov + cov.T)), None, {})
+        _, chol = laplace._cholesky_inverse(j_natural.T @ j_natural)
+        lap = laplace.Laplace(natural(refit), chol, None, {})
         try:
             draws, _ = laplace.draws(lap, JOINT_DRAWS, int(rng.integers(2**31)),
                                      admissible=inside)
@@ -284,10 +283,8 @@ def run_joint(fit, *, replicates: int = JOINT_REPLICATES, seed: int = 0,
 
     solve = smc.threaded(jax.jit(prediction))
 
-    def full(natural):  # (n, p_joint) natural -> (n, p) raw, the EF law at the optimum
-        theta = np.tile(centre, (len(natural), 1))
-        theta[:, own] = layout.raw(natural, own)
-        return theta
+    def full(natural):
+        return artifact.joint_raw(layout, natural)
 
     r_star, jac = laplace.joint_rows(layout, d, fit.lin, s0)
     jac = jac[:, own]

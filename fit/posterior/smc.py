@@ -253,6 +253,17 @@ def check(potential, centre, chol, inside, names, *, runs: int = RUNS,
                     first)
 
 
+def piloted(potential, centre, chol, inside, *, particles: int = PARTICLES, seeds=(0, 1),
+            progress=print) -> tuple[SmcRun, SmcRun]:
+    """(pilot, run): a pilot :func:`run` from the Laplace ``N(centre, chol chol^T)`` (seed
+    ``seeds[0]``), then a run from its :func:`reference` (seed ``seeds[1]``), as the shipped
+    draws are made."""
+    pilot = run(potential, centre, chol, inside, particles=particles, seed=seeds[0],
+                progress=progress)
+    return pilot, run(potential, *reference(pilot), inside, particles=particles, seed=seeds[1],
+                      progress=progress)
+
+
 def reference(pilot: SmcRun) -> tuple[np.ndarray, np.ndarray]:
     """The reference a pilot run gives the runs after it: (centre, Cholesky factor) of its
     particles' mean and covariance, the sds widened by :data:`REFERENCE_WIDENING`."""
