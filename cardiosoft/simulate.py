@@ -123,8 +123,10 @@ def parser(prog: str | None = None):
         "--explain",
         action="store_true",
         help="with --uncertainty: which parameters dominate each metric's band, and how far "
-        "one more measurement (tube length, SV or force at 60 bpm, shell compliance) would "
-        "narrow it (linearised; one jax.jacfwd, about a minute more)",
+        "one more measurement (tube length, column bore, SV or force at 60 bpm, shell "
+        "compliance) would "
+        "narrow it (linear over all the posterior's draws: two batched solves of them, about a "
+        "minute more)",
     )
     add_output_options(p, "summary.json, traces.csv, figure.png", plot="the figure")
     add_report_options(p)
@@ -434,11 +436,16 @@ def main(argv=None, prog: str | None = None) -> int:
             print(_table(records, result.scene, None, bands=True))
     if args.explain:
         from cardiosoft.explain import explain
+        from cardiosoft.pump import load_posterior
 
-        explanation = explain(scene, posterior, progress=console.say)
-        uncertainty["explain"] = explanation.record()
-        if not args.quiet:
-            print(explanation.table())
+        try:  # every draw: correlations need more than --draws' default
+            explanation = explain(scene, load_posterior(), progress=console.say)
+        except ValueError as err:  # too few draws settled to correlate: a failed solve
+            console.fail("--explain", str(err))
+        else:
+            uncertainty["explain"] = explanation.record()
+            if not args.quiet:
+                print(explanation.table())
     report_members(console, result.members, steady_asked=args.beats is None)
     extra = console.record()
     if uncertainty is not None:

@@ -1,16 +1,14 @@
 """What dominates a prediction's uncertainty and what to measure next (cardiosoft.explain).
 
-Independent sources: Gaussian conditioning written another way (the information form), and the
-shipped surrogate and bench scene for the parameter map.
+Independent sources: Gaussian conditioning written another way (the information form), and
+draws of a known Gaussian, whose closed-form shares and sds the draws' estimates must reach
+within their Monte Carlo error.
 """
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cardiosoft.explain import rebuild, sd_after, variance_shares
-from cardiosoft.pump import artifact_dir, load, load_posterior
-from cardiosoft.scene import load_scene
+from cardiosoft.explain import MIN_DRAWS, linear_over_draws, sd_after, variance_shares
 
 
 def _problem(seed=3, p=5):
@@ -38,18 +36,54 @@ def test_a_share_is_the_variance_an_exact_measurement_removes(i):
                                rtol=1e-6)
 
 
-def test_rebuild_at_the_centre_is_the_shipped_pump_and_bench():
-    """The posterior's raw centre maps back onto the shipped surrogate and the bench scene's
-    calibrated numbers (which the scene file rounds to 4-5 digits)."""
-    post = load_posterior()
-    with np.load(artifact_dir() / post.card["file"]) as f:
-        names, centre = [str(n) for n in f["names"]], jnp.asarray(f["centre"])
-    pump, values = rebuild(load(), names, centre)
-    shipped = load()
-    for field in ("ef_linear", "log_stiffness", "fold_compliance", "log_chamber_elastance"):
-        np.testing.assert_array_equal(getattr(pump, field), getattr(shipped, field))
-    # the quadratic rate comes back from its arguments at two Omegas: a 2x2 solve, to round-off
-    np.testing.assert_allclose(pump.ef_quadratic, shipped.ef_quadratic, rtol=1e-12, atol=1e-14)
-    scene = load_scene("bench-dynamic")
-    for field, value in values.items():
-        assert float(value) == pytest.approx(float(getattr(scene, field)), rel=1e-3), field
+def _linear_draws(size=20000, seed=5):
+    """Gaussian parameters and linear functions of them: the Gaussian answers hold exactly."""
+    g, cov = _problem()
+    theta = np.random.default_rng(seed).multivariate_normal(np.zeros(5), cov, size=size)
+    h = np.array([0.4, -1.0, 0.0, 2.0, 0.5])
+    return g, cov, h, theta
+
+
+# Monte Carlo tolerance of 20000 draws: a squared correlation's sd is at most
+# 0.77 / sqrt(20000) = 0.0054, a variance's relative sd sqrt(2 / 20000) = 0.01; 5 sds of each.
+SHARE_ATOL, SD_RTOL = 0.03, 0.025
+
+
+def test_shares_and_sds_over_draws_are_the_gaussian_ones():
+    """Over draws of a Gaussian and linear predictions, the shares, sds and sds after a
+    measurement are the closed-form ones of the covariance the draws came from."""
+    g, cov, h, theta = _linear_draws()
+    predictions = {"a": theta @ g[0], "b": theta @ g[1]}
+    ok = [np.ones(len(theta), bool)] * 2
+    sd, shares, after, fewest = linear_over_draws(
+        theta, predictions, ok, {"m": theta @ h}, {}, {"m": 0.7})
+    variance, exact_shares = variance_shares(g, cov)
+    np.testing.assert_allclose(sd, np.sqrt(variance), rtol=SD_RTOL)
+    np.testing.assert_allclose(shares, exact_shares, atol=SHARE_ATOL)
+    np.testing.assert_allclose(after["m"], sd_after(g, cov, h, 0.7), rtol=SD_RTOL)
+    assert fewest == len(theta)
+
+
+def test_draws_that_did_not_settle_are_left_out_of_their_prediction_only():
+    """A prediction's unsettled draws (here garbage values) are left out of it, and of the
+    measurement's gain where the measurement did not settle; other predictions keep them."""
+    g, cov, h, theta = _linear_draws()
+    a = theta @ g[0]
+    broken = np.zeros(len(theta), bool)
+    broken[::4] = True
+    garbage = np.where(broken, 1e6 * np.random.default_rng(1).standard_normal(len(theta)), a)
+    m = np.where(broken[::-1], -garbage, theta @ h)
+    sd, shares, after, fewest = linear_over_draws(
+        theta, {"a": garbage, "a again": a}, [~broken, np.ones(len(theta), bool)],
+        {"m": m}, {"m": ~broken[::-1]}, {"m": 0.7})
+    np.testing.assert_allclose(sd, np.sqrt(variance_shares(g[0], cov)[0][0]), rtol=SD_RTOL)
+    np.testing.assert_allclose(shares[0], shares[1], atol=SHARE_ATOL)
+    np.testing.assert_allclose(after["m"], sd_after(g[0], cov, h, 0.7)[0], rtol=SD_RTOL)
+    assert fewest == (~broken).sum()
+
+
+def test_too_few_settled_draws_is_an_error_naming_the_prediction():
+    _, _, _, theta = _linear_draws(size=MIN_DRAWS + 10)
+    ok = np.arange(len(theta)) < MIN_DRAWS - 1
+    with pytest.raises(ValueError, match=f"SV at 60 mmHg: {MIN_DRAWS - 1} of"):
+        linear_over_draws(theta, {"SV at 60 mmHg": theta[:, 0]}, [ok], {}, {}, {})

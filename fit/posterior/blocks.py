@@ -67,7 +67,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from cardiosoft.explain import BENCH_FIELDS
 from cardiosoft.pump import centred_omega
 from cardiosoft.units import mm, mmHg
 from fit import pipeline
@@ -77,9 +76,15 @@ MECHANICS = (*pipeline.MECHANICS_FIELDS, "fold_compliance")
 """The surrogate's parameters in the mechanics block: the fitted ones and the held kappa."""
 RIG = ("log_column_diameter", *pipeline.RIG_FIELDS)
 """The rig's parameters in the mechanics block: the held column diameter and the fitted ones."""
+BENCH_FIELDS = {
+    "bench.log_tube_length": "tube_length",
+    "bench.log_tube_diameter": "tube_diameter",
+    "bench.log_stiffness_ratio": "viscoelastic_ratio",
+    "bench.log_relaxation_time": "relaxation_time",
+}
+"""The bench calibration's four, as logs of SI values (``fit.bench.NAMES`` in m, -, s), and the
+scene fields they set."""
 BENCH_NAMES = tuple(BENCH_FIELDS)
-"""The bench calibration's four, as logs of SI values (``fit.bench.NAMES`` in m, -, s); one
-mapping to the scene's fields with :mod:`cardiosoft.explain`, which rebuilds the draws."""
 BENCH_SCENE_FIELDS = tuple(BENCH_FIELDS.values())
 FEM_ROUNDING = 0.001 / np.sqrt(12.0)
 """Table I prints EF to 0.1 %: a uniform rounding error of sd 0.1 % / sqrt(12) (fraction)."""
