@@ -8,7 +8,7 @@
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
     python -m fit.posterior --sbc      # simulation-based calibration of the EF block
     python -m fit.posterior --sbc --block mechanics+bench  # ... of the rest's Laplace
-    python -m fit.posterior --sobol    # Sobol indices (SALib) against the linearised shares
+    python -m fit.posterior --sobol    # Sobol indices (SALib) against the linear shares
 
 - :mod:`fit.posterior.blocks`: the parameters (the fit's raw coordinates) and each block's
   whitened residuals, sigmas and priors;
@@ -24,7 +24,7 @@
   left out at a time);
 - :mod:`fit.posterior.sbc`: simulation-based calibration of the EF block, and of the
   mechanics+bench block's Laplace at a linearised refit;
-- :mod:`fit.posterior.sobol`: Sobol indices against the linearised variance shares.
+- :mod:`fit.posterior.sobol`: Sobol indices against the linear variance shares of the draws.
 
 The draws are carried through the solve by :func:`cardiosoft.pump.load_posterior` and
 :mod:`cardiosoft.posterior`; :mod:`cardiosoft.explain` says what dominates a band.

@@ -7,7 +7,7 @@
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
     python -m fit.posterior --sbc      # simulation-based calibration of the EF block
     python -m fit.posterior --sbc --block mechanics+bench  # ... of the rest's Laplace
-    python -m fit.posterior --sobol    # Sobol indices (SALib) against the linearised shares
+    python -m fit.posterior --sobol    # Sobol indices (SALib) against the linear shares
 
 Run from the repository root after ``python -m fit`` and ``python -m fit.bench`` (the bench
 scene's calibrated numbers are the bench block's centre). An existing posterior is not
@@ -352,8 +352,8 @@ def _sobol(args) -> int:
     layout = blocks.Layout(load(args.artifact), fitting.rig_from_card(load_card(args.artifact)),
                            load_scene(artifact.SCENE))
     with np.load(npz, allow_pickle=False) as f:
-        arrays = {k: f[k] for k in ("centre", "transform", "positive")}
-    result = sobol.run(layout, arrays, post, base_samples=args.base_samples, seed=args.seed,
+        theta = f["theta"]
+    result = sobol.run(layout, theta, post, base_samples=args.base_samples, seed=args.seed,
                        progress=lambda m: print(m, file=sys.stderr, flush=True))
     print(result.table())
     _record(js, "sobol", result.record())
@@ -412,7 +412,7 @@ def main(argv=None) -> int:
                         help=f"replicates for --sbc (default {sbc.REPLICATES} for ef, "
                         f"{sbc.JOINT_REPLICATES} for {laplace.JOINT})")
     parser.add_argument("--sobol", action="store_true",
-                        help="Sobol indices (SALib) of the 60-bpm bench against the linearised "
+                        help="Sobol indices (SALib) of the 60-bpm bench against the linear "
                         "shares of --explain (fit.posterior.sobol)")
     parser.add_argument("--base-samples", type=int, default=128,
                         help="Saltelli base samples N for --sobol (N (d + 2) solves)")

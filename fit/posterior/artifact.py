@@ -448,10 +448,10 @@ TABLE2_MEASUREMENT_NOTE = (
 )
 
 
-LAPLACE_RECORDS = ("nuts", "importance", "smc", "sbc_ef", "sbc_joint", "sobol")
-"""The posterior card's records that check the Laplace approximation (or sample its whitened
-coordinates) and not the shipped draws: ``--nuts``, ``--importance``, ``--smc``, ``--sbc`` and
-``--sobol``'s. ``checks`` (``--check``) is the shipped draws' and is not among them."""
+LAPLACE_RECORDS = ("nuts", "importance", "smc", "sbc_ef", "sbc_joint")
+"""The posterior card's records that check the Laplace approximation and not the shipped
+draws: ``--nuts``, ``--importance``, ``--smc`` and ``--sbc``'s. ``checks`` (``--check``) and
+``sobol`` (``--sobol``) are the shipped draws' and are not among them."""
 
 
 def carried_records(old_card: dict, old_arrays, arrays: dict) -> dict:
