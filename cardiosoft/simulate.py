@@ -124,9 +124,8 @@ def parser(prog: str | None = None):
         action="store_true",
         help="with --uncertainty: which parameters dominate each metric's band, and how far "
         "one more measurement (tube length, column bore, SV or force at 60 bpm, shell "
-        "compliance) would "
-        "narrow it (linear over all the posterior's draws: two batched solves of them, about a "
-        "minute more)",
+        "compliance) would narrow it (linear over all the posterior's draws: two batched "
+        "solves of them, about a minute more)",
     )
     add_output_options(p, "summary.json, traces.csv, figure.png", plot="the figure")
     add_report_options(p)
