@@ -94,7 +94,8 @@ class EnsembleRun(NamedTuple):
 class Band(NamedTuple):
     """A metric's 95 % predictive band (user units): ``low``/``high`` with the discrepancy,
     ``parameter_low``/``parameter_high`` from the draws alone; ``failed`` draws left out of
-    ``draws``."""
+    ``draws``; the predictive samples' ``median`` and middle half (``quartiles``): off the
+    calibrated conditions the fit's optimum need not be typical of them."""
 
     low: float
     high: float
@@ -102,6 +103,8 @@ class Band(NamedTuple):
     parameter_high: float
     failed: int
     draws: int
+    median: float = math.nan
+    quartiles: tuple = (math.nan, math.nan)
 
 
 def discrepancy_sd(card: dict, kind: str, bpm: float, afterload_mmHg: float | None) -> float:
@@ -251,10 +254,11 @@ def predictive_bands(ens: EnsembleRun, card: dict, *, seed: int = 0) -> list[dic
                 if good.size == 0:
                     bands[key] = Band(math.nan, math.nan, math.nan, math.nan, int((~ok).sum()), 0)
                     continue
-                lo, hi = np.quantile(good, [lo_q, hi_q])
+                lo, q1, median, q3, hi = np.quantile(good, [lo_q, 0.25, 0.5, 0.75, hi_q])
                 plo, phi = np.quantile(plain, [lo_q, hi_q])
                 bands[key] = Band(
-                    float(lo), float(hi), float(plo), float(phi), int((~ok).sum()), int(ok.sum())
+                    float(lo), float(hi), float(plo), float(phi), int((~ok).sum()), int(ok.sum()),
+                    float(median), (float(q1), float(q3)),
                 )
             out.append(bands)
     return out

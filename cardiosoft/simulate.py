@@ -338,8 +338,8 @@ def _print_table(result, records, compare_paper: bool) -> None:
 
 def _uncertainty(args, scene, records, console, posterior) -> dict:
     """Solve the posterior's draws, add ``<metric>_band`` (and ``<metric>_band_parameters``,
-    the draws alone) to each record, flag failed draws; returns summary.json's
-    ``uncertainty`` entry."""
+    the draws alone, and ``<metric>_median``, the predictive samples') to each record, flag
+    failed draws; returns summary.json's ``uncertainty`` entry."""
     from cardiosoft.posterior import BAND, ensemble_run, predictive_bands
 
     console.say(
@@ -354,6 +354,8 @@ def _uncertainty(args, scene, records, console, posterior) -> dict:
         for key, band in member_bands.items():
             record[f"{key}_band"] = _finite([band.low, band.high])
             record[f"{key}_band_parameters"] = _finite([band.parameter_low, band.parameter_high])
+            # the best estimate is the fit's optimum, which need not be typical of the draws
+            record[f"{key}_median"] = _finite([band.median])[0]
         n_failed = next(iter(member_bands.values())).failed
         record["band_failed_draws"] = n_failed
         failed.append(n_failed)

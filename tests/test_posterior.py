@@ -57,6 +57,25 @@ def test_ef_band_stays_below_one():
     assert 0.0 <= band.low and band.high < 1.0
 
 
+def test_band_median_and_quartiles_are_the_predictive_normals():
+    """Draws' SV ~ N(80, 6) ml plus a discrepancy of 8 ml (inside the calibrated conditions:
+    s0 alone) is N(80, 10): the band's median and middle half are 80 and 80 -+ 6.74 ml.
+    Tolerance: 5 sds of a quantile of 2000 draws (0.31 ml at a quartile)."""
+    rng = np.random.default_rng(2)
+    sv = rng.normal(80.0, 6.0, (2000, 1))
+    values = {k: np.ones((2000, 1)) for k in ("peak_force_N", "mech_work_J", "efficiency",
+                                             "cardiac_output_l_min")}
+    values |= {"dynamic_sv_ml": sv, "edv_ml": sv + 50.0, "ef": sv / (sv + 50.0)}
+    card = json.loads(json.dumps(CARD))
+    card["discrepancy"]["dynamic_sv"] = {"s0": 8e-6, "s1": 0.0}
+    band = predictive_bands(EnsembleRun(values, np.ones((2000, 1), bool), 30.0,
+                                        np.array([60.0]), [""]), card)[0]["dynamic_sv_ml"]
+    quartile = 10.0 * 0.6745
+    assert band.median == pytest.approx(80.0, abs=1.5)
+    assert band.quartiles == pytest.approx((80.0 - quartile, 80.0 + quartile), abs=1.5)
+    assert band.low == pytest.approx(80.0 - 19.6, abs=2.5)  # a 2.5 % tail: 0.47 ml an sd
+
+
 def test_cut_laplace_is_the_linear_gaussian_cut_posterior():
     """For linear residuals the cut posterior is Gaussian in closed form: theta_a ~ N(., (A^T
     A)^-1); theta_b's refit given theta_a is lstsq(B2, y - B1 theta_a), linear in theta_a, plus
@@ -290,6 +309,7 @@ def test_simulate_uncertainty_writes_bands(tmp_path, capsys):
             lo, hi = r[f"{key}_band"]
             plo, phi = r[f"{key}_band_parameters"]
             assert lo < hi and lo <= plo <= phi <= hi
+            assert lo <= r[f"{key}_median"] <= hi
     assert (out / "figure.png").is_file()
 
 
