@@ -109,7 +109,8 @@ def parser(prog: str | None = None):
         action="store_true",
         help="also solve the surrogate's posterior draws (cardiosoft.pump.load_posterior) in "
         "one batched call and print each metric's 95 %% predictive band (draws plus model "
-        "discrepancy); summary.json gets <metric>_band: [low, high], the figure the bands",
+        "discrepancy); summary.json gets <metric>_band: [low, high] and <metric>_median, the "
+        "figure the bands",
     )
     p.add_argument(
         "--draws",
