@@ -102,3 +102,13 @@ def test_smc_rejects_failed_solves():
     assert np.all(run.draws[:, 1] <= -0.9)
     b = truncnorm(-np.inf, (-0.9 - MEAN[1]) / SD[1], loc=MEAN[1], scale=SD[1])
     assert abs(run.draws[:, 1].mean() - b.mean()) <= 4 * b.std() / math.sqrt(len(run.draws) / 4)
+
+
+@pytest.mark.parametrize("argv", [["--pilot-seed", "0"], ["--particles", "8"]])
+def test_smc_pilot_refuses_the_shipped_seed_and_too_few_particles(argv, capsys):
+    """``--smc-pilot`` checks the shipped draws against a pilot of other seeds: their own seed
+    would compare them with themselves. Refused before anything runs, exit 2."""
+    from fit.posterior.__main__ import main
+
+    assert main(["--smc-pilot", *argv]) == 2
+    assert "--pilot-seed" in capsys.readouterr().err

@@ -4,6 +4,7 @@
     python -m fit.posterior --nuts     # NUTS on the EF block against its Laplace
     python -m fit.posterior --importance  # the mechanics+bench block by importance sampling
     python -m fit.posterior --smc      # the mechanics+bench block by tempered SMC
+    python -m fit.posterior --smc-pilot  # ... from an independent pilot, against the shipped
     python -m fit.posterior --check    # Table II and the 30-bpm bench against their bands
     python -m fit.posterior --sbc      # simulation-based calibration of the EF block
     python -m fit.posterior --sbc --block mechanics+bench  # ... of the rest's Laplace
@@ -244,6 +245,89 @@ def _bench_bands(b, result, inside) -> dict:
             | {"failed": {n: v[1] for n, v in bands.items()}, "draws": len(smc_draws)}}
 
 
+PILOT_SEED = 10
+"""--smc-pilot's default seed (its pilot; its run the next): apart from the shipped draws' 0, 1."""
+PILOT_RATES_BPM = (30.0, 60.0)
+
+
+def _smc_pilot(args) -> int:
+    """Runs that share one pilot cannot show by R-hat a bias that pilot gives all of them
+    (:mod:`fit.posterior.smc`): a pilot and a run made as the shipped draws are, from other
+    seeds, compared with the card's ``smc`` record (the shipped pilot's runs) per parameter,
+    and the bench's bands at 30 and 60 bpm from draws built as the shipped ones are, beside
+    theirs. Recorded in the card as ``smc_pilot``."""
+    from cardiosoft.posterior import ensemble_run, predictive_bands
+    from cardiosoft.scene import load_scene
+    from cardiosoft.units import mmHg
+    from fit.posterior import artifact, laplace, smc
+
+    b = artifact.Shipped(args.artifact)
+    layout, cols = b.layout, b.spans[laplace.JOINT]
+    shipped = json.loads(b.card_path.read_text())["smc"][laplace.JOINT]["parameters"]
+    potential, inside = artifact.joint_target(layout, b.d, b.s0, load_scene(artifact.SCENE))
+    seeds = (args.pilot_seed, args.pilot_seed + 1)
+    print(f"tempered SMC of the {laplace.JOINT} block from an independent pilot (seeds "
+          f"{seeds[0]}, {seeds[1]}; the shipped draws': 0, 1), {args.particles} particles:",
+          flush=True)
+    _, run = smc.piloted(potential, b.natural_centre[cols], b.transform[cols, cols], inside,
+                         particles=args.particles, seeds=seeds,
+                         progress=lambda m: print(m, flush=True))
+    # Monte Carlo sd of a difference of means: the shipped runs' bulk ESS, and for this one
+    # run the ESS of one of theirs (a quarter), scaled by its particles
+    print(f"  {'parameter':28s} {'sd':>8s} {'shipped':>8s} {'shift':>6s} {'shipped':>8s} "
+          f"{'difference':>10s}   (natural coordinates; shift: mean minus the Laplace's "
+          "centre, in Laplace sds; difference in Monte Carlo sds)")
+    parameters = {}
+    for i, name in enumerate(layout.names[cols]):
+        r, x = shipped[name], run.draws[:, i]
+        shift = (x.mean() - b.natural_centre[cols][i]) / r["laplace_sd"]
+        ess = r["ess_bulk"] / smc.RUNS * args.particles / smc.PARTICLES
+        error = np.hypot(r["smc_sd"] / np.sqrt(r["ess_bulk"]),
+                         x.std(ddof=1) / np.sqrt(ess)) / r["laplace_sd"]
+        difference = (shift - r["mean_shift_in_laplace_sd"]) / error
+        parameters[name] = {"sd": float(x.std(ddof=1)), "shipped_sd": r["smc_sd"],
+                            "shift": float(shift), "shipped_shift": r["mean_shift_in_laplace_sd"],
+                            "difference_mc_sd": float(difference)}
+        print(f"  {name:28s} {x.std(ddof=1):8.4g} {r['smc_sd']:8.4g} {shift:+6.2f} "
+              f"{r['mean_shift_in_laplace_sd']:+8.2f} {difference:+10.1f}")
+    # the draws as the shipped ones are made, this run in the shipped run's place; the shipped
+    # EF draws are reused, as the support rejects some of their pairings
+    with np.load(b.npz, allow_pickle=False) as f:
+        theta = f["theta"]
+    ef = layout.blocks["ef"]
+    lap = laplace.Laplace(b.natural_centre, b.transform, None, {})
+    joint = np.random.default_rng(seeds[0]).permutation(run.draws)
+    pool = np.tile(theta[:, ef], (laplace.MAX_DRAW_ROUNDS, 1))
+    theta_new, _ = artifact.sample(layout, lap, len(theta), seeds[0], pool, joint)
+    draws = {"shipped": b.posterior,
+             "pilot": artifact.as_ensemble(layout, theta_new, b.posterior.card)}
+    bands = {}
+    for bpm in PILOT_RATES_BPM:
+        scene = load_scene("bench-dynamic").replace(bpm=bpm)
+        per = {who: predictive_bands(ensemble_run(scene, post), post.card)
+               for who, post in draws.items()}
+        for i, head in enumerate(scene.afterloads):
+            where = f"{bpm:g} bpm, {head / mmHg:.0f} mmHg"
+            for key in ("dynamic_sv_ml", "peak_force_N"):
+                row = {who: {"band": [v[i][key].low, v[i][key].high],
+                             "median": v[i][key].median, "failed": v[i][key].failed}
+                       for who, v in per.items()}
+                bands[f"{key} at {where}"] = row
+                print(f"  {key} at {where}:".ljust(36)
+                      + "   ".join(f"{who} [{r['band'][0]:.1f}, {r['band'][1]:.1f}] median "
+                                   f"{r['median']:.1f} ({r['failed']} failed)"
+                                   for who, r in row.items()), flush=True)
+    record = {"seeds": list(seeds), "particles": args.particles,
+              "evaluations": run.evaluations, "seconds": round(run.seconds, 1),
+              "parameters": parameters, "bands": bands,
+              "note": "95 % predictive bands (draws and discrepancy), as simulate --uncertainty "
+              "prints them, from the shipped draws and from draws built as they are with this "
+              "pilot's run in their run's place"}
+    _record(b.card_path, "smc_pilot", record)
+    print(f"recorded in {b.card_path}")
+    return 0
+
+
 def _check(args) -> int:
     from cardiosoft import datasets
     from cardiosoft.pump import artifact_path, load_card, load_posterior
@@ -399,6 +483,11 @@ def main(argv=None) -> int:
     parser.add_argument("--smc", action="store_true",
                         help="tempered SMC of the mechanics+bench block against its Laplace "
                         "(fit.posterior.smc)")
+    parser.add_argument("--smc-pilot", action="store_true",
+                        help="an SMC run of the mechanics+bench block from an independent "
+                        "pilot against the shipped draws: parameters and the bench's bands")
+    parser.add_argument("--pilot-seed", type=int, default=PILOT_SEED,
+                        help=f"--smc-pilot's pilot seed (its run the next; default {PILOT_SEED})")
     parser.add_argument("--runs", type=int, default=smc.RUNS, help="independent runs of --smc")
     parser.add_argument("--particles", type=int, default=smc.PARTICLES,
                         help="particles of each --smc run (each stage's moves solve the bench "
@@ -427,6 +516,12 @@ def main(argv=None) -> int:
                 raise ValueError(f"--runs {args.runs}, --particles {args.particles}: at least 2 "
                                  "runs (they are compared) of 16 particles")
             return _smc(args)
+        if args.smc_pilot:
+            if args.pilot_seed in (0, 1) or args.particles < 16:
+                raise ValueError(f"--pilot-seed {args.pilot_seed}, --particles "
+                                 f"{args.particles}: a seed other than the shipped draws' 0 "
+                                 "and 1, and at least 16 particles")
+            return _smc_pilot(args)
         if args.check:
             return _check(args)
         if args.sbc:

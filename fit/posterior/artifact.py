@@ -450,8 +450,9 @@ TABLE2_MEASUREMENT_NOTE = (
 
 LAPLACE_RECORDS = ("nuts", "importance", "smc", "sbc_ef", "sbc_joint")
 """The posterior card's records that check the Laplace approximation and not the shipped
-draws: ``--nuts``, ``--importance``, ``--smc`` and ``--sbc``'s. ``checks`` (``--check``) and
-``sobol`` (``--sobol``) are the shipped draws' and are not among them."""
+draws: ``--nuts``, ``--importance``, ``--smc`` and ``--sbc``'s. ``checks`` (``--check``),
+``sobol`` (``--sobol``) and ``smc_pilot`` (``--smc-pilot``) are the shipped draws' and are not
+among them."""
 
 
 def carried_records(old_card: dict, old_arrays, arrays: dict) -> dict:
