@@ -397,14 +397,15 @@ def main(argv=None, prog: str | None = None) -> int:
 
     console = Console(quiet=args.quiet, strict=args.strict)
     out_dir = Path(args.out) if args.out else None
-    posterior = None
+    posterior = every_draw = None
     try:
         scene = _configure(args, out_dir)
         if args.uncertainty:
             from cardiosoft.posterior import first_draws
             from cardiosoft.pump import load_posterior
 
-            posterior = first_draws(load_posterior(), args.draws)
+            every_draw = load_posterior()  # --explain correlates them all
+            posterior = first_draws(every_draw, args.draws)
         what = (
             "quasi-static pull, one root find per cable position"
             if scene.static
@@ -438,10 +439,9 @@ def main(argv=None, prog: str | None = None) -> int:
             print(_table(records, result.scene, None, bands=True))
     if args.explain:
         from cardiosoft.explain import explain
-        from cardiosoft.pump import load_posterior
 
         try:  # every draw: correlations need more than --draws' default
-            explanation = explain(scene, load_posterior(), progress=console.say)
+            explanation = explain(scene, every_draw, progress=console.say)
         except ValueError as err:  # too few draws settled to correlate: a failed solve
             console.fail("--explain", str(err))
         else:

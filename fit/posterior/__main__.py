@@ -296,9 +296,9 @@ def _smc_pilot(args) -> int:
         theta = f["theta"]
     ef = layout.blocks["ef"]
     lap = laplace.Laplace(b.natural_centre, b.transform, None, {})
-    joint = np.random.default_rng(seeds[0]).permutation(run.draws)
     pool = np.tile(theta[:, ef], (laplace.MAX_DRAW_ROUNDS, 1))
-    theta_new, _ = artifact.sample(layout, lap, len(theta), seeds[0], pool, joint)
+    theta_new, _ = artifact.sample(layout, lap, len(theta), seeds[0], pool,
+                                   artifact.shuffled(run, seeds[0]))
     draws = {"shipped": b.posterior,
              "pilot": artifact.as_ensemble(layout, theta_new, b.posterior.card)}
     bands = {}

@@ -152,6 +152,12 @@ def sample(layout: blocks.Layout, lap: laplace.Laplace, n: int, seed: int, ef_dr
     return layout.raw(natural_draws), accepted
 
 
+def shuffled(run: smc.SmcRun, seed: int) -> np.ndarray:
+    """An SMC run's particles in a seeded random order, as :func:`sample` pairs them with the
+    EF draws: resampling leaves copies side by side, and shuffled the pairing is random."""
+    return np.random.default_rng(seed).permutation(run.draws)
+
+
 def joint_raw(layout: blocks.Layout, natural) -> np.ndarray:
     """Full raw parameter vectors (n, p) from the mechanics+bench block's natural coordinates
     (n, p_joint), the EF law at the fit's optimum."""
@@ -315,9 +321,7 @@ def compute(path=None, *, n_draws: int = DRAWS, seed: int = SEED, ef_sampler: st
                                              lap.transform[cols, cols], inside,
                                              particles=n_draws, seeds=(seed, seed + 1),
                                              progress=progress)
-        # resampling leaves copies side by side: in a seeded order, the pairing with the EF
-        # draws is random
-        joint_draws = np.random.default_rng(seed).permutation(joint_run.draws)
+        joint_draws = shuffled(joint_run, seed)
     theta_draws, accepted = sample(layout, lap, n_draws, seed, ef_draws, joint_draws)
     pumps = jax.vmap(layout.pump)(jnp.asarray(theta_draws))
     arrays = {

@@ -192,7 +192,7 @@ def leave_one_afterload_out(fit, *, n_draws: int = LOAO_DRAWS, seed: int = 0,
             _, run = smc.piloted(potential, lap.centre[cols], lap.transform[cols, cols], inside,
                                  particles=n_draws, seeds=(seed + i, seed + n + i),
                                  progress=progress)
-            joint_draws = np.random.default_rng(seed + i).permutation(run.draws)
+            joint_draws = artifact.shuffled(run, seed + i)
         theta, _ = artifact.sample(fit.layout, lap, n_draws, seed + i, None, joint_draws)
         card = json.loads(json.dumps(artifact.discrepancy_card(fit)))
         card["discrepancy"]["distance"]["afterload_mmHg"] = [

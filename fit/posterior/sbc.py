@@ -41,6 +41,7 @@ predictions the posterior serves (:data:`JOINT_PREDICTIONS`): the bench's SV and
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -283,8 +284,7 @@ def run_joint(fit, *, replicates: int = JOINT_REPLICATES, seed: int = 0,
 
     solve = smc.threaded(jax.jit(prediction))
 
-    def full(natural):
-        return artifact.joint_raw(layout, natural)
+    full = functools.partial(artifact.joint_raw, layout)
 
     r_star, jac = laplace.joint_rows(layout, d, fit.lin, s0)
     jac = jac[:, own]
