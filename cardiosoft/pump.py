@@ -55,9 +55,19 @@ Structure (DESIGN.md section 3.2), built in rather than hoped for:
   rises linearly, peaks near the buckling pull ``x_b = L C_b`` (the step's centre,
   ``C_b = tau / Omega``, tau the step's twist) and falls as the folds form (Fig. 10(d)): U is
   not convex in x. Under displacement control that is stable; under force control it snaps through.
-- ``Phi(s; E) = (E / beta^2) (cosh(beta s) - 1)`` is the chamber's elastic energy about the
-  zero-pressure volume, ``s = V - V_eq(x, V)``. Without swelling ``P = (E / beta) sinh(beta s)``
-  and ``d2U/dV2 = E cosh(beta s) > 0``. The chamber stiffens with pressure
+- ``Phi(V; E) = (E / beta^2) (cosh(beta s) - 1) - E a (e^2 / 2 - s_a^2 log cosh(e / s_a))``
+  is the chamber's elastic energy, ``s = V - V_eq(x, V)`` its distension from the zero-pressure
+  volume and ``e(V) >= 0`` its stretch past the unloaded cavity (:meth:`Chamber.stretch`,
+  zero with its slope at and below V_u). Where neither
+  swelling nor stretch enters, ``P = (E / beta) sinh(beta s)`` and ``d2U/dV2 = E cosh(beta s) >
+  0``. The second term (format 4) is the softening of an inflated membrane: a Yeoh shell grows
+  more compliant as it stretches (its compliance at zero pull more than doubles from 0 to 230
+  mmHg, ``fit/data/membrane_inflation.csv``) before the cosh term stiffens it. It lowers the
+  stiffness by ``E a tanh^2(e / s_a)`` at most (and a term of order ``w^2 / s_a^2`` over the
+  3-ml onset), so with ``0 <= a < 1`` the unfolded chamber stays convex by construction. It
+  acts only past V_u: a chamber pulled below its rest shape is folded, not stretched, and its
+  compliance comes from the folds (the cosh law). Format 3 has ``a = 0``: the cosh law alone,
+  which only stiffens. The chamber stiffens with pressure
   (``dP/dV = sqrt(E^2 + beta^2 P^2)`` without swelling), and folding softens it,
   ``E = E_u exp(-kappa EF_0)`` (EF_0 of the unswollen chamber): the folded shell is more
   compliant (Fig. 10(a): static SV falls with afterload).
@@ -91,23 +101,36 @@ from cardiosoft.units import mmHg
 
 __all__ = [
     "DEFAULT_ARTIFACT",
+    "SHIPPED_ARTIFACTS",
     "Chamber",
     "Domain",
     "PosteriorDraws",
     "PumpSurrogate",
     "artifact_dir",
     "artifact_path",
+    "check_pump_name",
     "load",
     "load_posterior",
 ]
 
 DEFAULT_ARTIFACT = "ss950-v3"
-"""Name of the surrogate shipped with the package (``surrogates/ss950-v3.eqx`` + ``.json``)."""
+"""Name of the surrogate used when none is named (``surrogates/ss950-v3.eqx`` + ``.json``)."""
 
-FORMAT_VERSION = 3
-"""Version 3: the folds' depth yields to a swollen chamber (k). Version 2 had the same
-EF_0 law with the folds independent of the volume (a separable potential); version 1 a
-helix-independent linear rate, a fold depth linear in C and an additive three-fold term."""
+SHIPPED_ARTIFACTS = ("ss950-v3", "ss950-v4")
+"""The surrogates shipped with the package, by name (``load("ss950-v4")``, a scene's ``pump``
+key, ``--pump``): ss950-v3 (format 3) fitted to the paper's data alone; ss950-v4 (format 4)
+with the shell's membrane inflation from the paper's material as data too."""
+
+FORMAT_VERSION = 4
+"""Version 4: the chamber law softens as a membrane does (a, s_a), and it is fitted to the
+membrane inflation. Version 3 (still read: a = 0) has the folds' depth yield to a swollen
+chamber (k). Version 2 had the same EF_0 law with the folds independent of the volume (a
+separable potential); version 1 a helix-independent linear rate, a fold depth linear in C and
+an additive three-fold term."""
+READ_FORMAT_VERSIONS = (3, 4)
+"""The format versions :func:`load` reads."""
+FORMAT_4_FIELDS = ("chamber_softening", "log_softening_scale")
+"""The leaves a format-3 file does not hold; it is read with their defaults (a = 0)."""
 
 HELIX_SWITCH = 0.3
 """Omega over which the pre-buckling rate switches from longitudinal to helical (fixed)."""
@@ -171,6 +194,8 @@ class Chamber(eqx.Module):
     - ``unloaded_volume``: V_u (m^3): the chamber swells above it; the unit of the measure.
     - ``elastance``: E, the stiffness at zero pressure (Pa/m^3).
     - ``stiffening``: beta, how fast the chamber stiffens with distension (1/m^3).
+    - ``softening``: a in [0, 1), how much a stretched membrane softens (0: the cosh law).
+    - ``softening_scale``: s_a (m^3), the distension over which it softens.
     """
 
     rest_volume: jax.Array
@@ -179,12 +204,24 @@ class Chamber(eqx.Module):
     unloaded_volume: jax.Array
     elastance: jax.Array
     stiffening: jax.Array
+    softening: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
+    softening_scale: jax.Array = eqx.field(converter=jnp.asarray, default=30e-6)
 
     def swelling_measure(self, V) -> jax.Array:
         """u(V) = w softplus((V - V_u) / w) / V_u >= 0 (dimensionless), w = SWELLING_WIDTH:
         how far V exceeds the unloaded cavity, smoothly, as a fraction of it."""
         w = SWELLING_WIDTH
         return w * _softplus((V - self.unloaded_volume) / w) / self.unloaded_volume
+
+    def stretch(self, V) -> jax.Array:
+        """e(V) >= 0 (m^3): how far V exceeds the unloaded cavity, the membrane's stretch.
+        ``e = w phi((V - V_u) / w)`` with ``phi(z) = z^3 - z^4 / 2`` on [0, 1], 0 below and
+        ``z - 1/2`` above (C2; w = SWELLING_WIDTH): exactly zero, with its slope, at and below
+        V_u, so the softening leaves the shell at rest unloaded (``P(V_u, 0) = 0``)."""
+        w = SWELLING_WIDTH
+        z = (V - self.unloaded_volume) / w
+        onset = jnp.clip(z, 0.0, 1.0)
+        return w * jnp.where(z >= 1.0, z - 0.5, onset**3 - 0.5 * onset**4)
 
     def equilibrium_volume(self, V) -> jax.Array:
         """V_eq(V) (m^3): the zero-pressure volume of the folds as deep as the chamber at
@@ -198,9 +235,15 @@ class Chamber(eqx.Module):
         return V - self.equilibrium_volume(V)
 
     def energy(self, V) -> jax.Array:
-        """U_c (J) at cavity volume V (m^3)."""
-        beta = self.stiffening
-        return self.elastance / beta**2 * (jnp.cosh(beta * self.strain(V)) - 1.0)
+        """U_c (J) at cavity volume V (m^3): the cosh law in the distension s(V), less the
+        membrane's softening in the stretch past V_u, e(V) (module docstring)."""
+        beta, a, sa = self.stiffening, self.softening, self.softening_scale
+        z = self.stretch(V) / sa
+        log_cosh = jnp.logaddexp(z, -z) - jnp.log(2.0)
+        membrane = a * sa**2 * (0.5 * z**2 - log_cosh)
+        # format 3's expression as it was, so that its round-off is unchanged
+        cosh_law = self.elastance / beta**2 * (jnp.cosh(beta * self.strain(V)) - 1.0)
+        return cosh_law - self.elastance * membrane
 
     def pressure(self, V) -> jax.Array:
         """dU_c/dV (Pa), the chamber's elastic pressure: equal to dU/dV, as W does not hold V.
@@ -215,9 +258,9 @@ class Chamber(eqx.Module):
     def volume(self, pressure) -> jax.Array:
         """The cavity volume V (m^3) at ``pressure`` (Pa), unique where U is convex in V.
 
-        Without swelling, closed form: ``V = V_eq + asinh(beta P / E) / beta``. With it, Newton
-        on ``asinh(beta P(V) / E) / beta``, nearly linear in V, from the closed form of the
-        unswollen chamber, differentiated implicitly
+        Below V_u (no swelling, no softening), closed form: ``V = V_eq + asinh(beta P / E) /
+        beta``. Above it, Newton on ``asinh(beta P(V) / E) / beta``, nearly linear in V, from
+        that closed form, differentiated implicitly
         (:func:`cardiosoft.roots.implicit_scalar_root`).
         """
         beta, e = self.stiffening, self.elastance
@@ -262,6 +305,9 @@ class PumpSurrogate(eqx.Module):
     log_chamber_elastance: jax.Array = eqx.field(converter=jnp.asarray, default=22.0)
     fold_compliance: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
     log_stiffening: jax.Array = eqx.field(converter=jnp.asarray, default=11.0)
+    # format 4: a = r^2 / (1 + r^2) in [0, 1) (r = 0: the cosh law) and log s_a [m^3]
+    chamber_softening: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
+    log_softening_scale: jax.Array = eqx.field(converter=jnp.asarray, default=np.log(30e-6))
     # a chamber swollen past V_u resists the folds: k = softplus(.)
     swelling_resistance: jax.Array = eqx.field(converter=jnp.asarray, default=-20.0)
     # fold-count predictor: boundary in (Omega, C) and transition widths
@@ -318,7 +364,15 @@ class PumpSurrogate(eqx.Module):
             unloaded_volume=self.unloaded_volume,
             elastance=elastance,
             stiffening=jnp.exp(self.log_stiffening),
+            softening=self.softening,
+            softening_scale=jnp.exp(self.log_softening_scale),
         )
+
+    @property
+    def softening(self) -> jax.Array:
+        """a = r^2 / (1 + r^2) in [0, 1): the chamber's membrane softening (format 4)."""
+        r2 = self.chamber_softening**2
+        return r2 / (1.0 + r2)
 
     def zero_pressure_volume(self, x, omega) -> jax.Array:
         """V_eq(x; Omega) (m^3): the cavity volume at zero pressure for a cable pull x (m)."""
@@ -443,19 +497,28 @@ def artifact_dir() -> Path:
     )
 
 
-def save(model: PumpSurrogate, path, card: dict) -> None:
+def save(model: PumpSurrogate, path, card: dict, format_version: int = FORMAT_VERSION) -> None:
     """Write ``model`` to ``path`` (``.eqx``, equinox leaf serialisation) and its card (``.json``).
 
-    The card gets the format version and the sha256 of the weights file. Both files are written
-    whole (temporary file + rename).
+    The card gets the format version and the sha256 of the weights file; a format-3 file holds
+    no membrane softening (:data:`FORMAT_4_FIELDS`), which must then be a = 0. Both files are
+    written whole (temporary file + rename).
     """
+    if format_version not in READ_FORMAT_VERSIONS:
+        raise ValueError(f"format_version = {format_version}: allowed {READ_FORMAT_VERSIONS}")
+    if format_version < 4:
+        if float(model.softening) != 0.0:
+            raise ValueError("a format-3 surrogate has no membrane softening (a must be 0)")
+        model = eqx.tree_at(
+            lambda m: [getattr(m, f) for f in FORMAT_4_FIELDS], model, replace_fn=lambda _: None
+        )
     path = Path(path).with_suffix(".eqx")
     with atomic_path(path) as tmp:
         eqx.tree_serialise_leaves(tmp, model)
         digest = sha256(tmp)
     card = {
         **card,
-        "format_version": FORMAT_VERSION,
+        "format_version": format_version,
         "weights_file": path.name,
         "weights_sha256": digest,
     }
@@ -470,25 +533,39 @@ def load_card(path=None) -> dict:
 
 
 def artifact_path(path=None) -> Path:
-    """The weights file (``.eqx``) of the surrogate at ``path`` (its ``.eqx`` or ``.json``;
-    default: the shipped one)."""
+    """The weights file (``.eqx``) of the surrogate ``path``: a shipped name
+    (:data:`SHIPPED_ARTIFACTS`), or the path of its ``.eqx`` or ``.json`` (default: the
+    :data:`DEFAULT_ARTIFACT`)."""
     if path is None:
-        return artifact_dir() / f"{DEFAULT_ARTIFACT}.eqx"
+        path = DEFAULT_ARTIFACT
+    if str(path) in SHIPPED_ARTIFACTS:
+        return artifact_dir() / f"{path}.eqx"
     path = Path(path)
     return path if path.suffix == ".eqx" else path.with_suffix(".eqx")
 
 
-def _checked_card(card_path: Path, data_path: Path, version: int, what: str) -> dict:
+def check_pump_name(name) -> str:
+    """``name`` if it names a shipped surrogate or an existing artifact file; a
+    ``ValueError`` naming the allowed values otherwise (a CLI's ``--pump``, a scene's key)."""
+    if str(name) in SHIPPED_ARTIFACTS or artifact_path(name).is_file():
+        return str(name)
+    raise ValueError(
+        f"pump = {str(name)!r}: allowed a shipped surrogate ({', '.join(SHIPPED_ARTIFACTS)}) "
+        "or the path of a surrogate's .eqx or .json file"
+    )
+
+
+def _checked_card(card_path: Path, data_path: Path, versions, what: str) -> dict:
     """The JSON card at ``card_path``, once it and ``data_path`` exist and its format version
-    is ``version`` (``FileNotFoundError``, ``ValueError`` otherwise)."""
+    is one of ``versions`` (``FileNotFoundError``, ``ValueError`` otherwise)."""
     for p in (data_path, card_path):
         if not p.is_file():
             raise FileNotFoundError(f"{what} file {p} not found")
     card = json.loads(card_path.read_text())
-    if card.get("format_version") != version:
+    if card.get("format_version") not in versions:
         raise ValueError(
             f"{card_path}: format_version {card.get('format_version')!r} is not supported "
-            f"(this cardiosoft reads {version})"
+            f"(this cardiosoft reads {', '.join(map(str, versions))})"
         )
     return card
 
@@ -500,7 +577,7 @@ def load(path=None) -> PumpSurrogate:
     card's format version and the weights' sha256 are checked; nothing is ever unpickled.
     """
     weights = artifact_path(path)
-    card = _checked_card(weights.with_suffix(".json"), weights, FORMAT_VERSION, "surrogate")
+    card = _checked_card(weights.with_suffix(".json"), weights, READ_FORMAT_VERSIONS, "surrogate")
     digest = sha256(weights)
     if digest != card.get("weights_sha256"):
         raise ValueError(
@@ -512,7 +589,21 @@ def load(path=None) -> PumpSurrogate:
     skeleton = jax.tree_util.tree_map(
         lambda a: jnp.asarray(a, dtype=float) if eqx.is_array(a) else a, skeleton
     )
-    return eqx.tree_deserialise_leaves(weights, skeleton)
+    if card["format_version"] >= 4:
+        return eqx.tree_deserialise_leaves(weights, skeleton)
+    # a format-3 file holds every leaf but the membrane softening's: read the others, then
+    # put the defaults back (a = 0, the cosh law the file was fitted with)
+    defaults = [getattr(skeleton, f) for f in FORMAT_4_FIELDS]
+    older = eqx.tree_at(
+        lambda m: [getattr(m, f) for f in FORMAT_4_FIELDS], skeleton, replace_fn=lambda _: None
+    )
+    model = eqx.tree_deserialise_leaves(weights, older)
+    return eqx.tree_at(
+        lambda m: [getattr(m, f) for f in FORMAT_4_FIELDS],
+        model,
+        defaults,
+        is_leaf=lambda x: x is None,
+    )
 
 
 POSTERIOR_FORMAT_VERSION = 1
@@ -557,7 +648,7 @@ def load_posterior(path=None) -> PosteriorDraws:
             "compute one with python -m fit.posterior"
         )
     draws_path, card_path = weights.parent / entry["file"], weights.parent / entry["card"]
-    posterior = _checked_card(card_path, draws_path, POSTERIOR_FORMAT_VERSION, "posterior")
+    posterior = _checked_card(card_path, draws_path, (POSTERIOR_FORMAT_VERSION,), "posterior")
     digest = sha256(draws_path)
     if not digest == entry["sha256"] == posterior.get("sha256"):
         raise ValueError(

@@ -1,7 +1,9 @@
 """Fit the pump surrogate, or report on the shipped one.
 
     python -m fit                 # fit (~1 min on 2 cores), print the report, write surrogates/
+    python -m fit --format 4      # the membrane-true surrogate, surrogates/ss950-v4
     python -m fit --report        # report on the shipped artifact, no refit
+    python -m fit --report --artifact ss950-v4
     python -m fit --out DIR/NAME  # write the artifact elsewhere (NAME.eqx + NAME.json)
 
 Run from the repository root. An existing artifact is not overwritten without --force.
@@ -22,8 +24,8 @@ def main(argv=None) -> int:
 
     from cardiosoft import datasets
     from cardiosoft.files import refuse_overwrite
-    from cardiosoft.pump import DEFAULT_ARTIFACT, load, load_card
-    from fit import fitting, report
+    from cardiosoft.pump import load, load_card
+    from fit import fitting, pipeline, report
 
     parser = argparse.ArgumentParser(prog="python -m fit", description=__doc__.split("\n")[0])
     parser.add_argument(
@@ -33,10 +35,19 @@ def main(argv=None) -> int:
         "--artifact", metavar="PATH", help="artifact for --report (default: the shipped one)"
     )
     parser.add_argument(
+        "--format",
+        type=int,
+        choices=sorted(pipeline.RECIPES),
+        default=3,
+        help="3: the paper's data alone (ss950-v3); 4: the membrane inflation as data too, "
+        "nothing held (ss950-v4)",
+    )
+    parser.add_argument(
         "--out",
         metavar="PATH",
-        default=f"surrogates/{DEFAULT_ARTIFACT}",
-        help="where to write the fitted artifact (.eqx and .json)",
+        default=None,
+        help="where to write the fitted artifact (.eqx and .json; default: "
+        "surrogates/<the format's name>)",
     )
     parser.add_argument(
         "--data",
@@ -52,22 +63,26 @@ def main(argv=None) -> int:
         if args.report:
             model, card = load(args.artifact), load_card(args.artifact)
             rig = fitting.rig_from_card(card)
-            m = report.metrics(model, rig, data)
+            m = report.metrics(model, rig, data, membrane=card["format_version"] >= 4)
             for key in ("table1_loo_mae_ml", "peak_force_left_out"):
                 m[key] = card["metrics"][key]
             print(report.format_report(m, data, card["rig"]))
             print("  (leave-one-out values recorded by the fit in the card)")
             return 0 if all(report.verdicts(m).values()) else 1
-        out = Path(args.out).with_suffix(".eqx")
+        recipe = pipeline.RECIPES[args.format]
+        out = args.out or f"surrogates/{fitting.ARTIFACT_NAMES[args.format]}"
+        out = Path(out).with_suffix(".eqx")
         refuse_overwrite(out, args.force)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
 
     start = time.perf_counter()
-    model, rig, card = fitting.fit(data, progress=lambda msg: print(msg, file=sys.stderr))
+    model, rig, card = fitting.fit(
+        data, progress=lambda msg: print(msg, file=sys.stderr), recipe=recipe
+    )
     card["fit_seconds"] = round(time.perf_counter() - start, 1)
-    fitting.save_artifact(model, out, card)
+    fitting.save_artifact(model, out, card, recipe)
     print(report.format_report(card["metrics"], data, card["rig"]))
     print(
         f"\nwrote {out} and {out.with_suffix('.json')} in {card['fit_seconds']} s", file=sys.stderr

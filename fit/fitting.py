@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cardiosoft import datasets
-from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, PumpSurrogate, save
+from cardiosoft.pump import Domain, PumpSurrogate, save
 from cardiosoft.units import mm, mmHg
 from fit import pipeline, report
 
@@ -29,6 +29,9 @@ PARAMETER_MEANINGS = {
     "log_stiffening": "log beta [1/m^3]: P = dU/dV, U_c = (E/beta^2) (cosh(beta (V - V_eq)) - 1)",
     "swelling_resistance": "k = softplus(p): a chamber swollen past V_u resists the folds, their "
     "depth times exp(-k u(V)), u(V) = w softplus((V - V_u)/w) / V_u, w 3 ml",
+    "chamber_softening": "format 4: a = r^2 / (1 + r^2), the membrane's softening, "
+    "U_c -= E a (s^2/2 - s_a^2 log cosh(s/s_a)), s = V - V_eq (0 in format 3: the cosh law)",
+    "log_softening_scale": "format 4: log s_a [m^3], the distension over which it softens",
     "three_fold_boundary": "(Omega, C) corner of the three-fold region (midpoints in the data)",
     "three_fold_width": "transition widths of the three-fold indicator in Omega and C",
 }
@@ -101,7 +104,12 @@ def check_convexity(model: PumpSurrogate) -> float:
     return float(ratio.min())
 
 
-def afterload_validation(model: PumpSurrogate, t: pipeline.Targets, left_out: int = 1):
+def afterload_validation(
+    model: PumpSurrogate,
+    t: pipeline.Targets,
+    left_out: int = 1,
+    recipe: pipeline.Recipe = pipeline.FORMAT_3,
+):
     """Stage 2 again without the peak force at afterload ``left_out`` (default 60 mmHg): the
     force there is predicted, not fitted (issue #17). Returns ``(afterload mmHg, predicted N,
     paper N)``."""
@@ -109,7 +117,7 @@ def afterload_validation(model: PumpSurrogate, t: pipeline.Targets, left_out: in
     weight[left_out] = 0.0
     t_out = t._replace(peak_force_weight=weight)
     model_out, rig_out, _ = pipeline.fit_mechanics(
-        pipeline.mechanics_start(model), pipeline.Rig(), t_out
+        pipeline.mechanics_start(model, recipe), pipeline.Rig(), t_out, recipe
     )
     predicted = pipeline.bench_prediction(model_out, rig_out, t.afterload).peak_force
     return (
@@ -119,8 +127,21 @@ def afterload_validation(model: PumpSurrogate, t: pipeline.Targets, left_out: in
     )
 
 
-def fit(data: datasets.PaperData, progress=print):
-    """Fit stage 1 (with leave-one-out), the fold boundary and stage 2. Deterministic."""
+ARTIFACT_NAMES = {3: "ss950-v3", 4: "ss950-v4"}
+DESCRIPTIONS = {
+    3: "Strain-energy surrogate U(V, x; Omega) of the paper's SS950 soft pump "
+    "(A 60 mm, B 30 mm, w 1.5 mm), fitted to Table I, the Fig. 10 bench and "
+    "the FEM comparisons; Table II held out.",
+    4: "Strain-energy surrogate U(V, x; Omega) of the paper's SS950 soft pump "
+    "(A 60 mm, B 30 mm, w 1.5 mm), fitted to Table I, the Fig. 10 bench, the FEM comparisons "
+    "and the shell's membrane inflation from the paper's Yeoh material (computed, "
+    "python -m fit.membrane); Table II held out; nothing held.",
+}
+
+
+def fit(data: datasets.PaperData, progress=print, recipe: pipeline.Recipe = pipeline.FORMAT_3):
+    """Fit stage 1 (with leave-one-out), the fold boundary and stage 2 of ``recipe``'s format
+    (``pipeline.RECIPES``). Deterministic."""
     t = pipeline.targets(data)
     n = len(t.t1_ef)
     masks = jnp.concatenate([jnp.ones((1, n)), 1.0 - jnp.eye(n)])
@@ -150,27 +171,29 @@ def fit(data: datasets.PaperData, progress=print):
     model = stage1_model = eqx.combine(stage1[0], static)
     check_volume_decreases(model)
     progress(
-        f"stage 2: mechanics on the Fig. 10 bench and the FEM comparisons "
+        f"stage 2: mechanics on the Fig. 10 bench and the FEM comparisons"
+        f"{' and the membrane inflation' if recipe.membrane else ''} "
         f"({pipeline.ADAM_STEPS} Adam steps)"
     )
-    model, rig, history = pipeline.fit_mechanics(pipeline.mechanics_start(model), pipeline.Rig(), t)
+    model, rig, history = pipeline.fit_mechanics(
+        pipeline.mechanics_start(model, recipe), pipeline.Rig(), t, recipe
+    )
     history = np.asarray(history)
-    m = report.metrics(model, rig, data)
+    m = report.metrics(model, rig, data, membrane=recipe.membrane)
     m["table1_loo_mae_ml"] = float(np.mean(loo) * vu_ml)
     check_convexity(model)  # m holds the same minimum, from report.metrics
     progress("validation: stage 2 again without the 60-mmHg peak force")
-    p, predicted, paper = afterload_validation(stage1_model, t)
+    p, predicted, paper = afterload_validation(stage1_model, t, recipe=recipe)
     m["peak_force_left_out"] = {
         "afterload_mmHg": p,
         "predicted_N": predicted,
         "paper_N": paper,
         "relative_error": predicted / paper - 1.0,
     }
+    held = pipeline.HELD if recipe.format < 4 else {}
     card = {
-        "name": DEFAULT_ARTIFACT,
-        "description": "Strain-energy surrogate U(V, x; Omega) of the paper's SS950 soft pump "
-        "(A 60 mm, B 30 mm, w 1.5 mm), fitted to Table I, the Fig. 10 bench and "
-        "the FEM comparisons; Table II held out.",
+        "name": ARTIFACT_NAMES[recipe.format],
+        "description": DESCRIPTIONS[recipe.format],
         "data_sha256": data.hashes(),
         "held_out": [data.table2_experiment.path.name],
         "domain": Domain()._asdict(),
@@ -180,18 +203,19 @@ def fit(data: datasets.PaperData, progress=print):
             "cable_friction_exponent": float(rig.cable_friction),
             "fem_pressure_mmHg": float(rig.fem_pressure / mmHg),
             "note": "not given in the paper: the cable friction and the FEM pressure fitted "
-            "with the surrogate, the column diameter held (see held)",
+            "with the surrogate, the column diameter "
+            + ("held (see held)" if held else "too (pinned once the membrane pins the chamber)"),
         },
-        "held": {name: dict(entry) for name, entry in pipeline.HELD.items()},
+        "held": {name: dict(entry) for name, entry in held.items()},
         "metrics": m,
         "stage2_loss": {"start": float(history[0]), "end": float(history[-1])},
     }
     return model, rig, card
 
 
-def save_artifact(model: PumpSurrogate, path, card: dict) -> None:
-    """Write the weights and the card (``cardiosoft.pump.save``)."""
-    save(model, path, card)
+def save_artifact(model: PumpSurrogate, path, card: dict, recipe=pipeline.FORMAT_3) -> None:
+    """Write the weights and the card in ``recipe``'s format (``cardiosoft.pump.save``)."""
+    save(model, path, card, recipe.format)
 
 
 def record_posterior(weights, entry: dict) -> None:

@@ -185,9 +185,10 @@ def test_the_potential_is_convex_in_volume_over_the_domain(shipped_metrics):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="MODEL (issue #23): format 3 swells 41 ml at 90 mmHg at zero pull; the shell's "
-    "own inflation from the paper's Yeoh material (fit/data/membrane_inflation.csv) gives "
-    "about 14. Format 4, which fits it, is not shipped yet",
+    reason="MODEL (issues #23, #39): the default, format 3, swells 41 ml at 90 mmHg at zero "
+    "pull; the shell's own inflation from the paper's Yeoh material "
+    "(fit/data/membrane_inflation.csv) gives about 14. Format 4 (ss950-v4) fits it and ships "
+    "selectable (its tests below); it is not the default while its 30-bpm peak forces miss",
 )
 def test_the_shells_swelling_follows_its_own_inflation(data):
     """The surrogate at zero pull against the Yeoh membrane's inflation of the same shell,
@@ -199,6 +200,65 @@ def test_the_shells_swelling_follows_its_own_inflation(data):
     for p_mmHg, truth in zip(m["pressure_mmHg"][inside], m["swelling_ml"][inside], strict=True):
         v = float(pump.volume(jnp.asarray(p_mmHg * 133.322387415), 0.0, jnp.asarray(4.0)))
         assert abs((v - rest) / 1e-6 - truth) <= max(0.1 * truth, 1.0), p_mmHg
+
+
+# ------------------------------------------ the membrane-true surrogate, ss950-v4 (format 4)
+@pytest.fixture(scope="module")
+def card_v4():
+    return load_card("ss950-v4")
+
+
+@pytest.fixture(scope="module")
+def metrics_v4(data, card_v4):
+    """ss950-v4's report metrics recomputed from its weights and the data files."""
+    jitted = {n: jax.jit(getattr(pipeline, n)) for n in ("bench_prediction", "fem_prediction")}
+    with pytest.MonkeyPatch.context() as mp:
+        for name, fn in jitted.items():
+            mp.setattr(pipeline, name, fn)
+        return report.metrics(
+            load("ss950-v4"), fitting.rig_from_card(card_v4), data, membrane=True
+        )
+
+
+def test_v4_reproduces_its_card_and_holds_nothing(card_v4, metrics_v4):
+    """Format 4 is fitted to the membrane too, and that frees what format 3 held: its card
+    lists no held value, hashes the membrane file it read, and its metrics recompute."""
+    assert card_v4["format_version"] == 4 and card_v4["name"] == "ss950-v4"
+    assert card_v4["held"] == {}
+    data_dir = REPO / "fit" / "data"
+    assert sorted(card_v4["data_sha256"]) == sorted(p.name for p in data_dir.glob("*.csv"))
+    for name, digest in card_v4["data_sha256"].items():
+        assert sha256(data_dir / name) == digest, name
+    assert set(card_v4["metrics"]) - set(metrics_v4) == {"table1_loo_mae_ml", "peak_force_left_out"}
+    for key in sorted(set(metrics_v4) & set(card_v4["metrics"])):
+        _assert_same(metrics_v4[key], card_v4["metrics"][key], key, 1e-6)
+
+
+def test_v4_meets_the_papers_data_and_its_material(data, metrics_v4):
+    """Issue #39's numbers that the fit reaches on ss950-v4: the membrane within 10 % (or 1
+    ml), Table I <= 1.3 ml, Table II (held out) <= 1.5 ml, folds 34/34, static SVs within the
+    paper's SD, the work within 2 %, the FEM efficiencies within 0.02, convex over the domain."""
+    m = metrics_v4
+    assert m["membrane_max_excess"] <= 1.0
+    assert m["table1_mae_ml"] <= 1.3 and m["table2_mae_ml"] <= 1.5 and m["folds_wrong"] == 0
+    bench = data.fig10_bench
+    sv = np.asarray(m["static_sv_ml"])
+    assert np.all(np.abs(sv - bench["static_sv_ml"]) <= bench["static_sv_sd_ml"]), sv
+    assert m["mech_work_max_rel_error"] <= 0.02
+    assert abs(m["fem_efficiency_helical"] - 0.442) <= 0.02
+    assert abs(m["fem_efficiency_longitudinal"] - 0.331) <= 0.02
+    assert m["convexity_min_relative_stiffness"] >= pipeline.CONVEXITY_MARGIN
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="MODEL (issue #39): 8.03 % at 60 mmHg. With the membrane-stiff chamber the shell "
+    "swells too little at the bench for the folds' yield (k) to bend the force's rise with the "
+    "afterload: 0.72 then 0.67 N/mmHg against the paper's 0.99 then 0.30 (#23 measured 8.1 %)",
+)
+def test_v4_quasi_static_peak_forces_within_8_percent(data, metrics_v4):
+    force = np.asarray(metrics_v4["peak_force_N"])
+    assert np.all(np.abs(force / data.fig10_bench["peak_force_N"] - 1) <= 0.08), force
 
 
 def test_card_metrics_are_consistent_with_the_tables(data, card):
