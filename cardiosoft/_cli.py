@@ -76,6 +76,20 @@ def add_scene_option(parser, *, static: bool = True, loops: bool = False) -> Non
         help=f"shipped scene ({', '.join(names)}{closed}) or a scene .toml file "
         "(default: bench-dynamic)",
     )
+    add_pump_option(parser)
+
+
+def add_pump_option(parser) -> None:
+    """``--pump``: the surrogate a scene runs, in place of the scene's own (its key 'pump')."""
+    from cardiosoft.pump import DEFAULT_ARTIFACT, SHIPPED_ARTIFACTS
+
+    parser.add_argument(
+        "--pump",
+        metavar="NAME",
+        help=f"pump surrogate: {', '.join(SHIPPED_ARTIFACTS)} or a surrogate's .eqx file "
+        f"(default: the scene's key 'pump', else {DEFAULT_ARTIFACT}); the bench scenes carry "
+        "their rig's calibration for each shipped pump",
+    )
 
 
 def add_output_options(parser, files: str, *, plot: str | None = None) -> None:

@@ -387,7 +387,7 @@ def solve_beats(
         raise ValueError(f"scene {scene.name} is static: use solve_static")
     check_solve_options(save, steady, beats)
     members = _members(scene, omega, shortening, bpm, afterload)
-    pump = load() if pump is None else pump
+    pump = load(scene.pump) if pump is None else pump
     config = default_config(scene) if config is None else config
     max_beats, tol = (int(beats), 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
     structure, numbers = split_scene(scene)
@@ -459,7 +459,7 @@ def solve_orbit(
         raise ValueError(f"scene {scene.name} is static: it has no orbit")
     if save not in ("traces", "metrics"):
         raise ValueError(f"save = {save!r}: allowed traces, metrics")
-    pump = load() if pump is None else pump
+    pump = load(scene.pump) if pump is None else pump
     config = default_config(scene) if config is None else config
     members = _members(scene, omega, shortening, bpm, afterload)
     head = members["afterload"][0]
@@ -533,7 +533,7 @@ def solve_static(
     if not scene.afterload.has_heads:
         raise ValueError(f"scene {scene.name}: quasi-static strokes need a water-column afterload")
     members = _members(scene, omega, shortening, None, afterload)
-    pump = load() if pump is None else pump
+    pump = load(scene.pump) if pump is None else pump
     size = ensemble_size(pump, scene_draws)
     draws = scene_draws or {}
     diameter = draws.get("column_diameter", scene.column_diameter)

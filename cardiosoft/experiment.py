@@ -18,7 +18,7 @@ from cardiosoft.batch import default_config, solve_beats, solve_static
 from cardiosoft.loop_batch import loop_config
 from cardiosoft.loop_results import configure_loop, run_loop
 from cardiosoft.loop_scene import LoopScene
-from cardiosoft.pump import PumpSurrogate, load
+from cardiosoft.pump import PumpSurrogate, check_pump_name, load
 from cardiosoft.results import RunResult, member_results
 from cardiosoft.scene import ACCURACY, RANGES, Scene, load_scene
 from cardiosoft.units import mmHg
@@ -27,10 +27,20 @@ __all__ = ["configure", "run", "run_designs"]
 
 
 def configure(
-    scene="bench-dynamic", *, omega=None, shortening=None, bpm=None, afterload=None, accuracy=None
+    scene="bench-dynamic",
+    *,
+    omega=None,
+    shortening=None,
+    bpm=None,
+    afterload=None,
+    accuracy=None,
+    pump: str | None = None,
 ) -> Scene:
     """The scene with the user's overrides (user units), validated; see :func:`run`."""
-    scene = scene if isinstance(scene, Scene | LoopScene) else load_scene(scene)
+    if not isinstance(scene, Scene | LoopScene):
+        scene = load_scene(scene, pump=pump)
+    elif pump is not None and pump != scene.pump:
+        scene = scene.replace(pump=check_pump_name(pump))
     if isinstance(scene, LoopScene):
         return configure_loop(
             scene,
@@ -174,7 +184,7 @@ def run_designs(
 
 def _simulate(scene: Scene, labels, members, beats, steady, pump, energy=False, config=None):
     """Solve the members (all the scene's afterloads by default) and label the records."""
-    pump = load() if pump is None else pump
+    pump = load(scene.pump) if pump is None else pump
     options = dict(beats=beats, steady=steady, energy=energy, pump=pump, config=config)
     if scene.static:
         static = solve_static(scene, **members, pump=pump)

@@ -303,7 +303,7 @@ def solve_loop(
             raise ValueError(f"{name}: scene {scene.name} has no soft pump to design")
         members |= {f"{c}.{name}": value for c in scene.pumps}
     members = loop_members(scene, members)
-    pump = load() if pump is None and scene.pumps else pump
+    pump = load(scene.pump) if pump is None and scene.pumps else pump
     config = loop_config(scene) if config is None else config
     max_beats, tol = (int(beats), 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
     structure, numbers = _split(scene)

@@ -188,6 +188,6 @@ def run_loop(
 ) -> RunResult:
     """Simulate a closed-loop scene, one member, and its records: what :func:`cardiosoft.run`
     does with one (it validates the arguments, :func:`configure_loop` the overrides)."""
-    pump = load() if pump is None else pump
+    pump = load(scene.pump) if pump is None else pump
     solution = solve_loop(scene, beats=beats, steady=steady, pump=pump, config=config)
     return RunResult(scene, loop_member_results(scene, [scene.name], solution, pump.domain))

@@ -29,7 +29,7 @@ from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES, CablePull
 from cardiosoft.closed_loop import CHAMBERS, VALVES, VESSELS, ClosedLoop
 from cardiosoft.heart import Activation, ElastanceChamber, PumpChamber, Vessel
-from cardiosoft.pump import Domain, PumpSurrogate
+from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, PumpSurrogate
 from cardiosoft.solve import ACCURACY_PRESETS as ACCURACY
 from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s2_per_ml, mmHg_s_per_ml
 from cardiosoft.valves import ArctanValve, Valve
@@ -122,6 +122,7 @@ class LoopScene:
     accuracy: str = "default"
     max_beats: int = 300
     steady_tol: float = 0.01
+    pump: str = DEFAULT_ARTIFACT  # the surrogate of every pump chamber (cardiosoft.scene)
     static: ClassVar[bool] = False
 
     @property
@@ -262,6 +263,8 @@ def _read_numbers(reader: _Reader, kind: str) -> dict:
 def parse_loop_scene(source: str, doc: dict) -> LoopScene:
     """A :class:`LoopScene` from a parsed TOML document ``doc`` read from ``source``."""
     top = _Reader(source, doc)
+    top.pop("calibration")  # a closed loop calibrates nothing per pump; any is allowed
+    pump = top.text("pump", DEFAULT_ARTIFACT)
     name, description = top.text("name"), top.text("description")
     top.choice("kind", ("closed_loop",))
     fields = _read_numbers(top.sub("heart", required=True), "heart")
@@ -287,7 +290,9 @@ def parse_loop_scene(source: str, doc: dict) -> LoopScene:
     solve.done()
     top.done()
     fields["max_beats"] = int(fields["max_beats"])
-    return _validated(LoopScene(name=name, source=source, description=description, **fields))
+    return _validated(
+        LoopScene(name=name, source=source, description=description, pump=pump, **fields)
+    )
 
 
 def _check(source: str, where: str, spec: _Number, value) -> None:

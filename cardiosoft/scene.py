@@ -17,6 +17,14 @@ compiled vector field (not multiplied by zero):
   ``shell_viscoelasticity`` (the chamber stiffer to fast strokes than to slow ones, relaxing
   back to the surrogate; :class:`~cardiosoft.circuit.ShellViscoelasticity`).
 
+**The pump.** A scene's top-level ``pump`` key names the surrogate it runs
+(:data:`cardiosoft.pump.SHIPPED_ARTIFACTS` or an artifact's path; default
+:data:`cardiosoft.pump.DEFAULT_ARTIFACT`); ``load_scene(name, pump=...)`` (``--pump``) overrides
+it. The bench's unknowns (the tube, the column, the cable friction, the shell's
+viscoelasticity) are calibrated *with* a surrogate, so a scene's numbers belong to its own
+``pump``; a table ``[calibration."<pump>"]``, laid out like the file, holds another pump's. A
+scene that has such tables runs only the pumps it has numbers for, and says so otherwise.
+
 Every message about a bad file names the file, the key, the value and what is allowed.
 """
 
@@ -36,7 +44,7 @@ from cardiosoft._validate import check_range
 from cardiosoft.actuation import BPM_RANGE, SHAPES
 from cardiosoft.circulation import AtrialSource, Bench, Tube, WaterColumn, Windkessel3
 from cardiosoft.loop_scene import LoopScene, parse_loop_scene
-from cardiosoft.pump import Domain
+from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, check_pump_name
 from cardiosoft.solve import ACCURACY_PRESETS
 from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
 from cardiosoft.valves import VALVE_KINDS, VALVE_SMOOTHING, Valve
@@ -161,6 +169,8 @@ class Scene:
     accuracy: str = "default"
     max_beats: int = 30
     steady_tol: float = 0.01
+    pump: str = DEFAULT_ARTIFACT  # the surrogate: a shipped name or an artifact's path
+    calibrated_pumps: tuple[str, ...] = ()  # pumps the file has rig numbers for; () = any
 
     def has(self, effect: str) -> bool:
         return effect in self.effects
@@ -171,7 +181,13 @@ class Scene:
         return AFTERLOADS[self.afterload_type]
 
     def replace(self, **changes) -> Scene:
-        """A copy with ``changes`` applied (already in SI), validated like a file."""
+        """A copy with ``changes`` applied (already in SI), validated like a file. The pump
+        of a scene with calibrated rig numbers changes only through :func:`load_scene`."""
+        if "pump" in changes and changes["pump"] != self.pump and self.calibrated_pumps:
+            raise ValueError(
+                f"pump = {changes['pump']!r}: scene {self.name}'s rig is calibrated per pump; "
+                f"load it with load_scene({self.source!r}, pump=...) instead"
+            )
         return _validated(dataclasses.replace(self, **changes))
 
     def column_heads_mmHg(self, given=None, *, action: str) -> tuple[float, ...] | None:
@@ -277,8 +293,10 @@ def _applies(when: str, afterload_type: str, effects) -> bool:
     return when == afterload_type
 
 
-def _parse(source: str, doc: dict) -> Scene:
+def _parse(source: str, doc: dict, calibrated_pumps: tuple[str, ...] = ()) -> Scene:
     top = _Reader(source, doc)
+    top.pop("calibration")  # applied by select_pump
+    pump = top.text("pump", DEFAULT_ARTIFACT)
     name = top.text("name")
     description = top.text("description")
     static = top.choice("kind", ("static", "dynamic")) == "static"
@@ -332,9 +350,56 @@ def _parse(source: str, doc: dict) -> Scene:
             static=static,
             effects=effects,
             afterload_type=kind,
+            pump=pump,
+            calibrated_pumps=calibrated_pumps,
             **fields,
         )
     )
+
+
+def select_pump(source: str, doc: dict, pump=None) -> tuple[dict, tuple[str, ...]]:
+    """The scene document ``doc`` as run with ``pump`` (None: the file's own ``pump``): the
+    file's numbers, overlaid by the ``[calibration."<pump>"]`` table when the pump is another
+    one; and the pumps the file has numbers for (none: it calibrates nothing, any pump runs).
+    A scene with calibration tables refuses a pump it has no numbers for."""
+    own = doc.get("pump", DEFAULT_ARTIFACT)
+    pump = own if pump is None else check_pump_name(pump)
+    if not isinstance(own, str):
+        raise ValueError(f"{source}: key 'pump' = {own!r}: allowed a string")
+    check_pump_name(own)
+    calibrations = doc.get("calibration", {})
+    if not isinstance(calibrations, dict) or not all(
+        isinstance(t, dict) for t in calibrations.values()
+    ):
+        raise ValueError(
+            f"{source}: key 'calibration' must hold one table per pump, "
+            '[calibration."<pump>".<section>]'
+        )
+    calibrated = (own, *calibrations) if calibrations else ()
+    if pump == own:
+        return doc, calibrated
+    if calibrations and pump not in calibrations:
+        raise ValueError(
+            f"pump = {pump!r}: scene {source} has rig numbers calibrated for "
+            f"{', '.join([own, *calibrations])} only (a [calibration.\"{pump}\"] table would "
+            "give them)"
+        )
+    merged = {k: (dict(v) if isinstance(v, dict) else v) for k, v in doc.items()}
+    for section, table in calibrations.get(pump, {}).items():
+        if not isinstance(table, dict) or not isinstance(merged.get(section), dict):
+            raise ValueError(
+                f"{source}: key 'calibration.{pump}.{section}' must be a table overriding the "
+                f"scene's own [{section}]"
+            )
+        unknown = sorted(set(table) - set(merged[section]))
+        if unknown:
+            raise ValueError(
+                f"{source}: key 'calibration.{pump}.{section}.{unknown[0]}' overrides no key of "
+                f"[{section}]; allowed: {', '.join(sorted(merged[section]))}"
+            )
+        merged[section].update(table)
+    merged["pump"] = pump
+    return merged, calibrated
 
 
 def _validated(scene: Scene) -> Scene:
@@ -404,10 +469,11 @@ def _validated(scene: Scene) -> Scene:
     return scene
 
 
-def load_scene(name_or_path) -> Scene | LoopScene:
+def load_scene(name_or_path, pump=None) -> Scene | LoopScene:
     """A shipped scene by name (:data:`SCENE_NAMES`, :data:`LOOP_SCENE_NAMES`) or a scene file
     by path; a closed-loop file (``kind = "closed_loop"``) gives a
-    :class:`~cardiosoft.loop_scene.LoopScene`."""
+    :class:`~cardiosoft.loop_scene.LoopScene`. ``pump`` runs another surrogate than the file's
+    own (module docstring: a scene calibrated per pump needs its numbers for it)."""
     text_name = str(name_or_path)
     if text_name in SCENE_NAMES + LOOP_SCENE_NAMES:
         path = resources.files("cardiosoft") / "scenes" / f"{text_name}.toml"
@@ -425,6 +491,7 @@ def load_scene(name_or_path) -> Scene | LoopScene:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"{source}: not valid TOML: {err}") from None
+    doc, calibrated = select_pump(source, doc, pump)
     if doc.get("kind") == "closed_loop":
         return parse_loop_scene(source, doc)
-    return _parse(source, doc)
+    return _parse(source, doc, calibrated)

@@ -173,13 +173,18 @@ def _design(scene) -> dict:
 
 
 def _heading(scene) -> str:
+    from cardiosoft.pump import DEFAULT_ARTIFACT
+
+    # the surrogate is named when it is not the default, which every other run uses
+    surrogate = [] if scene.pump == DEFAULT_ARTIFACT else [f"pump {scene.pump}"]
     if not _is_loop(scene):
-        return f"{scene.name} at {scene.bpm:g} bpm, Omega {scene.omega:g}, C {scene.shortening:g}"
+        design = f"Omega {scene.omega:g}, C {scene.shortening:g}"
+        return ", ".join([f"{scene.name} at {scene.bpm:g} bpm", design, *surrogate])
     pumps = [
         f"{c.upper()} pump Omega {getattr(scene, c).omega:g}, C {getattr(scene, c).shortening:g}"
         for c in scene.pumps
     ]
-    return ", ".join([f"{scene.name} (closed loop) at {scene.bpm:g} bpm", *pumps])
+    return ", ".join([f"{scene.name} (closed loop) at {scene.bpm:g} bpm", *pumps, *surrogate])
 
 
 def _table(records, scene, paper, *, bands: bool = False) -> str:
@@ -277,6 +282,7 @@ def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> li
     written = ["summary.json", "traces.csv"] + (["figure.png"] if plot else [])
     summary = {
         "scene": result.scene.name,
+        "pump": result.scene.pump,
         "bpm": result.scene.bpm,
         **_design(result.scene),
         "records": records,
@@ -312,6 +318,7 @@ def _configure(args, out_dir):
         bpm=args.bpm,
         afterload=args.afterload,
         accuracy=args.accuracy,
+        pump=args.pump,
     )
     if args.beats is not None:
         check_range("beats", args.beats, "beats", 1, 500)
@@ -404,7 +411,7 @@ def main(argv=None, prog: str | None = None) -> int:
             from cardiosoft.posterior import first_draws
             from cardiosoft.pump import load_posterior
 
-            every_draw = load_posterior()  # --explain correlates them all
+            every_draw = load_posterior(scene.pump)  # --explain correlates them all
             posterior = first_draws(every_draw, args.draws)
         what = (
             "quasi-static pull, one root find per cable position"

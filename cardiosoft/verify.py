@@ -229,7 +229,7 @@ def verify_run(
     ``run_designs()`` of several designs is not).
     """
     scene = result.scene
-    pump = load() if pump is None else pump
+    pump = load(scene.pump) if pump is None else pump
     _check_members(result)
     labels = [m.label for m in result.members]
     heads = None

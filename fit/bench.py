@@ -53,26 +53,48 @@ FORCE_SCALE = 0.02  # residual unit of the peak force with --peak-forces, relati
 NAMES = ("tube_length_mm", "tube_diameter_mm", "stiffness_ratio", "relaxation_time_s")
 
 
-def calibrate(progress=print, peak_forces: bool = False):
+def surrogate_rig(pump_name=None) -> dict:
+    """The rig numbers fitted with the surrogate (its card's ``rig``), as a bench scene's
+    keys: the column's diameter and the cable friction."""
+    from cardiosoft.pump import load_card
+
+    rig = load_card(pump_name)["rig"]
+    return {
+        "column_diameter_mm": rig["column_diameter_mm"],
+        "exponent": rig["cable_friction_exponent"],
+    }
+
+
+def calibrate(progress=print, peak_forces: bool = False, pump_name=None, steps: int = STEPS):
     """Returns (rig values in the units of NAMES, model SV ml, M J, peak force N, targets, loss).
 
-    ``peak_forces``: fit the paper's peak forces too (module docstring).
+    ``peak_forces``: fit the paper's peak forces too (module docstring). ``pump_name``: the
+    surrogate (default: the shipped default). The column and the cable friction are the
+    surrogate's own (its card); the calibration starts from the scene's numbers for that pump
+    where it has them, else from its own.
     """
     from cardiosoft import datasets
     from cardiosoft.batch import solve_beats
     from cardiosoft.pump import load
     from cardiosoft.scene import load_scene
     from cardiosoft.solve import SolverConfig
-    from cardiosoft.units import mmHg
+    from cardiosoft.units import mm, mmHg
 
-    scene = load_scene("bench-dynamic")
+    try:
+        scene = load_scene("bench-dynamic", pump=pump_name)
+    except ValueError:  # no numbers for this pump yet: start from the scene's own
+        scene = load_scene("bench-dynamic")
+    own = surrogate_rig(pump_name)
+    scene = scene.replace(
+        column_diameter=own["column_diameter_mm"] * mm, cable_friction=own["exponent"]
+    )
     bench = datasets.load_paper_data().fig10_bench
     sv_target = jnp.asarray(bench["dynamic_sv_ml"]) * 1e-6
     sv_sd = jnp.asarray(bench["dynamic_sv_sd_ml"]) * 1e-6
     heads = jnp.asarray(bench["afterload_mmHg"]) * mmHg
     work_target = heads * sv_target / jnp.asarray(bench["efficiency"])
     force_target = jnp.asarray(bench["peak_force_N"])
-    pump = load()
+    pump = load(pump_name)
     config = SolverConfig(diffrax.Tsit5(), rtol=1e-7, atol=1e-12, adjoint=diffrax.ForwardMode())
 
     def outputs(log_rig):
@@ -100,12 +122,12 @@ def calibrate(progress=print, peak_forces: bool = False):
     optimiser = optax.adam(LEARNING_RATE)
     state = optimiser.init(params)
     best = (np.inf, params)
-    for step in range(STEPS):
+    for step in range(steps):
         r, jac = residual_and_jac(params)
         loss = float(jnp.sum(r**2))
         if loss < best[0]:
             best = (loss, params)
-        if step % 10 == 0 or step == STEPS - 1:
+        if step % 10 == 0 or step == steps - 1:
             rig = np.exp(np.asarray(params)) * np.array([1e3, 1e3, 1.0, 1.0])
             progress(
                 f"  step {step:3d}: loss {loss:8.4f}  tube {rig[0]:6.1f} x {rig[1]:5.2f} mm, "
@@ -127,11 +149,20 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--peak-forces", action="store_true", help="fit the paper's peak forces too (a check)"
     )
+    parser.add_argument(
+        "--pump", metavar="NAME", help="the surrogate to calibrate with (default: the default)"
+    )
+    parser.add_argument(
+        "--steps", type=int, default=STEPS, help=f"Adam steps (default {STEPS})"
+    )
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
     start = time.perf_counter()
     rig, sv, work, force, (sv_target, work_target, force_target), loss = calibrate(
-        progress=lambda m: print(m, file=sys.stderr), peak_forces=args.peak_forces
+        progress=lambda m: print(m, file=sys.stderr),
+        peak_forces=args.peak_forces,
+        pump_name=args.pump,
+        steps=args.steps,
     )
     units = f"SV in the paper's sd, M in {WORK_SCALE:.0%} of M"
     if args.peak_forces:
@@ -150,11 +181,18 @@ def main(argv=None) -> int:
             f"paper {', '.join(f'{v:.2f}' for v in paper)}"
         )
     print(f"peak force, worst relative error: {np.max(np.abs(force / force_target - 1)):.3f}")
-    print("bench-dynamic.toml:")
-    print(f"[afterload] tube_length_mm = {rig[0]:.1f}")
-    print(f"[afterload] tube_diameter_mm = {rig[1]:.3f}")
-    print(f"[shell_viscoelasticity] stiffness_ratio = {rig[2]:.3f}")
-    print(f"[shell_viscoelasticity] relaxation_time_s = {rig[3]:.3f}")
+    own = surrogate_rig(args.pump)
+    where = "" if args.pump is None else f'calibration."{args.pump}".'
+    print(f"bench-dynamic.toml{' (a table of its own for this pump)' if where else ''}:")
+    print(f"[{where}afterload]")
+    print(f"column_diameter_mm = {own['column_diameter_mm']:.2f}  # the surrogate's card")
+    print(f"tube_length_mm = {rig[0]:.1f}")
+    print(f"tube_diameter_mm = {rig[1]:.3f}")
+    print(f"[{where}cable_friction]")
+    print(f"exponent = {own['exponent']:.4f}  # the surrogate's card")
+    print(f"[{where}shell_viscoelasticity]")
+    print(f"stiffness_ratio = {rig[2]:.3f}")
+    print(f"relaxation_time_s = {rig[3]:.3f}")
     return 0
 
 

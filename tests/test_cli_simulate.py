@@ -60,6 +60,7 @@ BAD_INPUTS = {
     "scene": ["--scene", "nope"],
     "afterload": ["--afterload", "nan"],
     "omega": ["--omega", "7"],
+    "pump": ["--pump", "ss950-v9"],
 }
 
 
@@ -72,6 +73,9 @@ def runs(tmp_path_factory):
     procs = {
         "full": launch("--bpm", 30, "--compare-paper", "--out", full),
         "static": launch("--scene", "bench-static", "--no-plot", "--out", static),
+        "static_v4": launch(
+            "--scene", "bench-static", "--pump", "ss950-v4", "--no-plot", "--out", root / "v4"
+        ),
     }
     procs |= {name: launch(*args, "--out", root / name) for name, args in BAD_INPUTS.items()}
     done = {name: finish(p) for name, p in procs.items()}
@@ -100,6 +104,26 @@ def test_run_writes_summary_traces_and_figure(runs):
     printed = result.stdout
     for r in records:
         assert f"{r['dynamic_sv_ml']:.1f}" in printed
+
+
+def test_pump_option_runs_the_named_surrogate_with_its_rig(runs):
+    """``--pump ss950-v4`` on the static bench: the scene takes that pump's calibration (its
+    model card's column and friction), so its static SVs are the ones its fit recorded (the
+    same quasi-static pull; 1e-3 covers the pull grid, 201 points there)."""
+    from cardiosoft.pump import load_card
+
+    done, root, _ = runs
+    assert done["static_v4"].returncode == 0, done["static_v4"].stderr
+    assert "pump ss950-v4" in done["static_v4"].stdout
+    v4 = json.loads((root / "v4" / "summary.json").read_text())
+    v3 = json.loads((root / "static" / "summary.json").read_text())
+    assert v4["pump"] == "ss950-v4" and v3["pump"] == "ss950-v3"
+    card = load_card("ss950-v4")["metrics"]
+    sv = [r["static_sv_ml"] for r in v4["records"]]
+    np.testing.assert_allclose(sv, card["static_sv_ml"], rtol=1e-3)
+    force = [r["peak_force_N"] for r in v4["records"]]
+    np.testing.assert_allclose(force, card["peak_force_N"], rtol=1e-3)
+    assert [r["peak_force_N"] for r in v3["records"]] != pytest.approx(force, rel=1e-2)
 
 
 def read_traces(folder):

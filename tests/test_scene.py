@@ -6,6 +6,7 @@ checked structurally (state keys, the traced vector field) and numerically (a ne
 switched off agrees with it switched on).
 """
 
+import dataclasses
 import math
 import tomllib
 from importlib import resources
@@ -21,7 +22,7 @@ from scipy.optimize import brentq, minimize_scalar
 from cardiosoft import batch
 from cardiosoft.batch import scene_circuit
 from cardiosoft.experiment import run
-from cardiosoft.pump import load, load_card
+from cardiosoft.pump import SHIPPED_ARTIFACTS, load, load_card
 from cardiosoft.scene import EFFECTS, LOOP_SCENE_NAMES, SCENE_NAMES, Scene, load_scene
 from cardiosoft.units import mm
 
@@ -87,12 +88,72 @@ def test_windkessel_scene_units_are_converted_to_si():
     assert scene.afterloads == ()
 
 
+@pytest.mark.parametrize("pump", SHIPPED_ARTIFACTS)
 @pytest.mark.parametrize("name", ["bench-dynamic", "bench-static"])
-def test_bench_reuses_the_surrogates_fitted_rig(name):
-    rig = load_card()["rig"]
-    scene = load_scene(name)
+def test_bench_reuses_the_surrogates_fitted_rig(name, pump):
+    """Each shipped pump runs the bench with the rig fitted with it (its model card)."""
+    rig = load_card(pump)["rig"]
+    scene = load_scene(name, pump=pump)
+    assert scene.pump == pump
     assert scene.column_diameter / mm == pytest.approx(rig["column_diameter_mm"], rel=1e-3)
     assert scene.cable_friction == pytest.approx(rig["cable_friction_exponent"], rel=1e-3)
+
+
+def test_a_pumps_calibration_table_overlays_the_scenes_numbers():
+    """``[calibration."ss950-v4"]`` replaces the keys it names and nothing else."""
+    path = resources.files("cardiosoft") / "scenes" / "bench-dynamic.toml"
+    raw = tomllib.loads(path.read_text())
+    table = raw["calibration"]["ss950-v4"]
+    own, other = load_scene("bench-dynamic"), load_scene("bench-dynamic", pump="ss950-v4")
+    assert own.pump == raw["pump"] == "ss950-v3"
+    assert own.tube_length == pytest.approx(raw["afterload"]["tube_length_mm"] * mm)
+    assert other.tube_length == pytest.approx(table["afterload"]["tube_length_mm"] * mm)
+    assert other.tube_diameter == pytest.approx(table["afterload"]["tube_diameter_mm"] * mm)
+    visco = table["shell_viscoelasticity"]
+    assert other.viscoelastic_ratio == pytest.approx(visco["stiffness_ratio"])
+    assert other.relaxation_time == pytest.approx(visco["relaxation_time_s"])
+    calibrated = {
+        "pump", "column_diameter", "tube_length", "tube_diameter", "cable_friction",
+        "viscoelastic_ratio", "relaxation_time",
+    }
+    for field in dataclasses.fields(Scene):
+        if field.name not in calibrated:
+            mine, theirs = getattr(own, field.name), getattr(other, field.name)
+            assert mine == theirs or (mine != mine and theirs != theirs), field.name  # NaN: unset
+    assert own.calibrated_pumps == other.calibrated_pumps == ("ss950-v3", "ss950-v4")
+
+
+def test_a_pump_the_bench_has_no_numbers_for_is_refused(tmp_path):
+    """A bench calibrated per pump refuses another surrogate (its tube would be another
+    pump's); a scene with nothing calibrated (a Windkessel) takes any."""
+    from cardiosoft.pump import artifact_path
+
+    for suffix in (".eqx", ".json"):
+        source = artifact_path("ss950-v4").with_suffix(suffix)
+        (tmp_path / f"mine{suffix}").write_bytes(source.read_bytes())
+    mine = str(tmp_path / "mine.eqx")
+    with pytest.raises(ValueError, match=r"calibrated for ss950-v3, ss950-v4 only"):
+        load_scene("bench-dynamic", pump=mine)
+    assert load_scene("lv-systemic", pump=mine).pump == mine
+    with pytest.raises(ValueError, match=r"pump = 'ss950-v9': allowed a shipped surrogate"):
+        load_scene("lv-systemic", pump="ss950-v9")
+    with pytest.raises(ValueError, match=r"calibrated per pump; load it with load_scene"):
+        load_scene("bench-dynamic").replace(pump="ss950-v4")
+
+
+def test_a_scene_file_names_its_pump(tmp_path):
+    """The top-level key ``pump``; a calibration table may only override the file's keys."""
+    text = (resources.files("cardiosoft") / "scenes" / "lv-systemic.toml").read_text()
+    path = tmp_path / "mine.toml"
+    path.write_text('pump = "ss950-v4"\n' + text)
+    assert load_scene(path).pump == "ss950-v4"
+    assert load_scene(path, pump="ss950-v3").pump == "ss950-v3"
+    path.write_text('pump = "nope"\n' + text)
+    with pytest.raises(ValueError, match=r"pump = 'nope'"):
+        load_scene(path)
+    path.write_text(text + '\n[calibration."ss950-v4".preload]\nvolume_ml = 3\n')
+    with pytest.raises(ValueError, match=r"calibration\.ss950-v4\.preload\.volume_ml"):
+        load_scene(path, pump="ss950-v4")
 
 
 # ---------------------------------------------------------------------------- bad files
@@ -477,3 +538,4 @@ def test_static_stroke_against_a_second_method(static_run):
         )
         svs.append(sv)
     assert np.all(np.diff(svs) < 0)  # a higher column lets less out
+

@@ -366,7 +366,7 @@ def main(argv=None, prog: str | None = None) -> int:
                 raise ValueError(f"--out {out_dir} exists and is not a folder")
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
-        scene = load_scene(args.scene)
+        scene = load_scene(args.scene, pump=args.pump)
         if isinstance(scene, LoopScene):
             from cardiosoft.design.loop_cli import run_loop_design
 
@@ -381,7 +381,7 @@ def main(argv=None, prog: str | None = None) -> int:
             from cardiosoft.posterior import first_draws
             from cardiosoft.pump import load_posterior
 
-            posterior = first_draws(load_posterior(), args.draws)
+            posterior = first_draws(load_posterior(scene.pump), args.draws)
     except (ValueError, FileNotFoundError) as err:
         return fail(err)
     plot = out_dir is not None and not args.no_plot

@@ -418,7 +418,7 @@ def optimise_loop(
         number_key(scene, p)
         lo, hi = _box(p)
         check_range(f"start {p}", numbers[p], "bpm" if p == "bpm" else "", lo, hi)
-    pump = load() if pump is None else pump
+    pump = load(scene.pump) if pump is None else pump
     ev = _Evaluator(scene, free, pump)
     start_x = np.clip((np.array([numbers[p] for p in free]) - ev.lo) / (ev.hi - ev.lo), 0, 1)
     say(

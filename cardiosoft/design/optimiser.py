@@ -286,7 +286,7 @@ def optimise(
     )
     _check_options(problem, max_rounds, pareto, map_lattice, accuracy, steady)
     say = progress if progress is not None else (lambda line: None)
-    pump = load() if pump is None else pump
+    pump = load(problem.scene.pump) if pump is None else pump
     steady = steady_method(problem.scene, steady)
     evaluate = Evaluator(problem, pump, accuracy, steady)
     record = SearchRecord(problem)

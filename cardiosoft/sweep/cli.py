@@ -18,6 +18,7 @@ from cardiosoft._cli import (
     values_argument,
 )
 from cardiosoft.console import Console, fail
+from cardiosoft.scene import load_scene
 from cardiosoft.sweep.chunk import NOT_STEADY, STATUS
 from cardiosoft.sweep.maps import map_keys
 from cardiosoft.sweep.plan import DEFAULT_CHUNK
@@ -155,7 +156,7 @@ def main(argv=None, prog: str | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # Dask's notes on ports and memory are not errors
             ds = design_sweep(
-                args.scene,
+                args.scene if args.pump is None else load_scene(args.scene, pump=args.pump),
                 omega=args.omega,
                 shortening=args.shortening,
                 afterload=values_argument(args.afterload),

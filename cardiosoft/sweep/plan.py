@@ -8,7 +8,6 @@ import json
 import math
 import os
 import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -141,6 +140,7 @@ def make_plan(
 ) -> Plan:
     from cardiosoft._validate import check_range
     from cardiosoft.experiment import configure
+    from cardiosoft.pump import DEFAULT_ARTIFACT
     from cardiosoft.scene import RANGES
 
     scene = configure(scene, accuracy=accuracy)
@@ -170,6 +170,8 @@ def make_plan(
         raise ValueError(f"chunk = {chunk!r}: allowed a whole number of points >= 1")
     size = math.prod(len(v) for v in coords.values())
     chunk = int(min(chunk, size))  # a small grid is one chunk of its own size
+    if pump is None and scene.pump != DEFAULT_ARTIFACT:
+        pump = scene.pump  # the scene's own surrogate (its key 'pump')
     pump, name, digest = surrogate_of(pump)
     if draws is not None:
         from cardiosoft.pump import load_posterior
@@ -196,7 +198,7 @@ def surrogate_of(pump):
         card = pump_module.load_card(pump)
         if pump is not None:
             pump_module.load(pump)  # checks the file and its hash now, not on a worker
-            pump = str(Path(pump).resolve())
+            pump = str(pump_module.artifact_path(pump).resolve())
         return pump, card["name"], card["weights_sha256"]
     if not isinstance(pump, pump_module.PumpSurrogate):
         raise ValueError(f"pump = {pump!r}: allowed None, a surrogate file or a PumpSurrogate")
