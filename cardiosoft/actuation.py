@@ -11,6 +11,13 @@ rest of the period at x = 0. Within the pull and release phases the profile foll
 - ``"smoothstep"``: ``3 s^2 - 2 s^3`` (zero speed at the phase ends, C1);
 - ``"cosine"``: the raised cosine ``(1 - cos(pi s)) / 2`` (zero speed at the phase ends, C1).
 
+A real drive cannot start and stop at full speed: a universal testing machine's crosshead
+accelerates over a finite time. ``ramp_time`` (s, ``"linear"`` only; 0 by default, the ideal
+triangle) gives each phase of the linear shape jerk-limited ends: over the ramp the speed rises
+as a raised cosine from 0 to the cruise speed ``v_c = v / (1 - r)`` (r the ramp's fraction of
+the phase, ``v`` the triangle's speed), so stroke and phase durations are unchanged, the speed
+is C1 and the acceleration, at most ``pi v_c / (2 t_r)``, is continuous.
+
 All parameters are array leaves: a new stroke, period or fraction reuses the compiled code. The
 phase boundaries are kinks (speed jumps for ``"linear"``, acceleration jumps otherwise); pass
 :meth:`CablePull.kink_times` as ``jump_ts`` to the solver.
@@ -33,13 +40,29 @@ BPM_RANGE = (0.0, 300.0)
 """Allowed beat rate (bpm), open at 0: (0, 300]."""
 
 
-def _profile(shape: str, s):
-    """Normalised rise f(s) on s in [0, 1], f(0) = 0, f(1) = 1."""
+def _profile(shape: str, s, ramp=0.0):
+    """Normalised rise f(s) on s in [0, 1], f(0) = 0, f(1) = 1; ``ramp`` (linear only): the
+    fraction of the phase, in [0, 1/2], over which a jerk-limited end accelerates."""
     if shape == "linear":
-        return s
+        return _ramped_linear(s, ramp)
     if shape == "smoothstep":
         return s * s * (3.0 - 2.0 * s)
     return 0.5 * (1.0 - jnp.cos(jnp.pi * s))
+
+
+def _ramped_linear(s, r):
+    """Constant cruise speed ``v_c = 1 / (1 - r)`` with raised-cosine speed ramps of length r
+    at both ends (module docstring); exactly ``s`` at ``r = 0``."""
+    cruise = 1.0 / (1.0 - r)
+    safe_r = jnp.where(r > 0.0, r, 1.0)
+
+    def ramp_distance(u):  # distance covered u into a ramp from rest: int_0^u v(u') du'
+        return 0.5 * cruise * (u - safe_r / jnp.pi * jnp.sin(jnp.pi * u / safe_r))
+
+    middle = cruise * (s - 0.5 * r)
+    return jnp.where(
+        s < r, ramp_distance(s), jnp.where(s > 1.0 - r, 1.0 - ramp_distance(1.0 - s), middle)
+    )
 
 
 class CablePull(eqx.Module):
@@ -53,6 +76,8 @@ class CablePull(eqx.Module):
     - ``hold_fraction``: dwell at full pull, in [0, 1]; default 0.
     - ``release_fraction``: duration of the release, in (0, 1]; default 0.5.
       ``pull + hold + release <= 1``; the rest of the period is rest at x = 0.
+    - ``ramp_time``: the jerk-limited ends of a ``"linear"`` phase (s), >= 0 and at most half
+      the shortest phase; default 0 (start and stop at full speed).
     - ``shape`` (static): one of :data:`SHAPES`, default ``"linear"``.
     """
 
@@ -61,6 +86,7 @@ class CablePull(eqx.Module):
     pull_fraction: jax.Array = eqx.field(converter=jnp.asarray, default=0.5)
     hold_fraction: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
     release_fraction: jax.Array = eqx.field(converter=jnp.asarray, default=0.5)
+    ramp_time: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
     shape: str = eqx.field(static=True, default="linear")
 
     def __check_init__(self):
@@ -76,6 +102,22 @@ class CablePull(eqx.Module):
             total = self.pull_fraction + self.hold_fraction + self.release_fraction
             if float(jnp.max(total)) > 1.0 + 1e-12:  # round-off of e.g. 0.1 + 0.2 + 0.7
                 check_range("pull + hold + release fractions", total, "-", 0.0, 1.0)
+        if not _is_traced(self.ramp_time):
+            check_range("ramp time", self.ramp_time, "s", 0.0, float("inf"))
+            if self.shape != "linear" and float(jnp.max(self.ramp_time)) > 0.0:
+                raise ValueError(
+                    f"ramp time = {float(jnp.max(self.ramp_time)):g} s: allowed only with the "
+                    f"linear shape (the {self.shape} shape already starts and stops at rest)"
+                )
+            if not any(_is_traced(v) for v in (self.period, *fractions)):
+                t_pull, _, t_release = self._durations
+                check_range(
+                    "ramp time",
+                    self.ramp_time,
+                    "s",
+                    0.0,
+                    float(0.5 * jnp.minimum(t_pull, t_release).min()),
+                )
 
     @classmethod
     def from_bpm(cls, stroke, bpm, **kwargs) -> CablePull:
@@ -94,7 +136,9 @@ class CablePull(eqx.Module):
         tau = jnp.mod(t, self.period)
         s_pull = jnp.clip(tau / t_pull, 0.0, 1.0)
         s_release = jnp.clip((tau - t_pull - t_hold) / t_release, 0.0, 1.0)
-        return self.stroke * (_profile(self.shape, s_pull) - _profile(self.shape, s_release))
+        rise = _profile(self.shape, s_pull, self.ramp_time / t_pull)
+        fall = _profile(self.shape, s_release, self.ramp_time / t_release)
+        return self.stroke * (rise - fall)
 
     def velocity(self, t) -> jax.Array:
         """Pull speed dx/dt (m/s) by forward-mode differentiation of :meth:`__call__`.

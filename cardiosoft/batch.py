@@ -166,6 +166,7 @@ def scene_circuit(
         scene.pull_fraction,
         scene.hold_fraction,
         scene.release_fraction,
+        ramp_time=scene.ramp_time,
         shape=scene.shape,
     )
     friction = CableFriction(scene.cable_friction) if scene.has("cable_friction") else None

@@ -166,6 +166,7 @@ class Scene:
     cable_friction: float = 0.0
     viscoelastic_ratio: float = 0.0
     relaxation_time: float = math.nan  # s
+    ramp_time: float = 0.0  # s: the linear pull's jerk-limited ends (cardiosoft.actuation)
     accuracy: str = "default"
     max_beats: int = 30
     steady_tol: float = 0.01
@@ -224,6 +225,8 @@ _NUMBERS = (
     _Number("pull_fraction", "actuation.pull_fraction", "", 0.0, 1.0, True, default=0.5),
     _Number("hold_fraction", "actuation.hold_fraction", "", 0.0, 1.0, default=0.0),
     _Number("release_fraction", "actuation.release_fraction", "", 0.0, 1.0, True, default=0.5),
+    # a drive's jerk-limited start and stop (cardiosoft.actuation), linear shape only
+    _Number("ramp_time", "actuation.ramp_time_s", "s", 0.0, 1.0, default=0.0),
     _Number("afterloads", "afterload.pressures_mmHg", "mmHg", 0.0, 150.0, False, mmHg,
             when="water_column"),
     _Number("column_diameter", "afterload.column_diameter_mm", "mm", 1.0, 500.0, False, mm,
@@ -450,6 +453,20 @@ def _validated(scene: Scene) -> Scene:
             raise ValueError(
                 f"{where} key '{key}' = {getattr(scene, field)!r}: allowed {', '.join(choices)}"
             )
+    timing = (scene.ramp_time, scene.bpm, scene.pull_fraction, scene.release_fraction)
+    concrete = not any(isinstance(v, jax.core.Tracer) for v in timing)
+    if concrete and scene.ramp_time > 0 and scene.shape != "linear":
+        raise ValueError(
+            f"{where} key 'actuation.ramp_time_s' = {scene.ramp_time:g} s: allowed only with "
+            f"shape = 'linear' (the {scene.shape} shape already starts and stops at rest)"
+        )
+    phases = min(scene.pull_fraction, scene.release_fraction)
+    shortest = phases / scene.bpm * 60.0 if concrete else 0.0  # s
+    if concrete and scene.ramp_time > 0.5 * shortest:
+        raise ValueError(
+            f"{where} key 'actuation.ramp_time_s' = {scene.ramp_time:g} s: allowed at most half "
+            f"the shortest phase, {0.5 * shortest:g} s"
+        )
     total = scene.pull_fraction + scene.hold_fraction + scene.release_fraction
     if total > 1 + 1e-12:
         raise ValueError(

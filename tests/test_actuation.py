@@ -135,3 +135,43 @@ def test_validation_messages(make, words):
 def test_fractions_summing_to_one_with_round_off_are_accepted():
     pull = CablePull(STROKE, 1.0, 0.1, 0.2, 0.7)  # 0.1 + 0.2 + 0.7 = 1.0000000000000002
     np.testing.assert_allclose(pull(0.999), STROKE * (1 - 0.699 / 0.7), rtol=1e-10)
+
+
+# ------------------------------------------------------- the drive's jerk-limited ends (#39)
+def test_zero_ramp_is_the_ideal_triangle_exactly():
+    ts = jnp.linspace(0.0, 4.0, 801)
+    ideal = CablePull(46e-3, 2.0)
+    ramped = CablePull(46e-3, 2.0, ramp_time=0.0)
+    np.testing.assert_array_equal(np.asarray(ideal(ts)), np.asarray(ramped(ts)))
+
+
+def test_ramped_pull_keeps_stroke_and_phases_and_limits_acceleration():
+    """Closed forms of the raised-cosine speed ramp (module docstring): the stroke is reached
+    at the phase's end; the cruise speed is v / (1 - r) with v the triangle's; the speed is
+    continuous (C1 pull) and the largest acceleration is pi v_c / (2 t_r), by finite
+    differences of the pull."""
+    stroke, period, ramp = 46e-3, 2.0, 0.1
+    pull = CablePull(stroke, period, ramp_time=ramp)
+    t_phase = 0.5 * period
+    v = stroke / t_phase
+    cruise = v / (1.0 - ramp / t_phase)
+    assert float(pull(t_phase)) == pytest.approx(stroke, rel=1e-14)
+    assert float(pull(0.5 * t_phase)) == pytest.approx(0.5 * stroke, rel=1e-12)
+    assert float(pull.velocity(0.5 * t_phase)) == pytest.approx(cruise, rel=1e-12)
+    ts = np.linspace(0.0, period, 200_001)
+    x = np.asarray(pull(jnp.asarray(ts)))
+    dt = ts[1] - ts[0]
+    speed = np.gradient(x, dt)
+    assert np.max(np.abs(np.diff(speed))) < 1e-3 * cruise  # no jump: C1
+    accel = np.gradient(speed, dt)
+    assert np.max(np.abs(accel)) == pytest.approx(np.pi * cruise / (2 * ramp), rel=1e-3)
+    assert abs(float(pull.velocity(0.0))) < 1e-12  # starts from rest
+
+
+def test_ramp_is_refused_where_it_does_not_apply():
+    with pytest.raises(ValueError, match=r"ramp time = 0\.1 s: allowed only with the linear"):
+        CablePull(46e-3, 2.0, shape="cosine", ramp_time=0.1)
+    with pytest.raises(ValueError, match="ramp time"):
+        CablePull(46e-3, 2.0, ramp_time=0.6)  # more than half the 1-s pull
+    with pytest.raises(ValueError, match="ramp time"):
+        CablePull(46e-3, 2.0, ramp_time=-0.01)

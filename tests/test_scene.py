@@ -539,3 +539,18 @@ def test_static_stroke_against_a_second_method(static_run):
         svs.append(sv)
     assert np.all(np.diff(svs) < 0)  # a higher column lets less out
 
+
+def test_ramp_time_is_read_and_checked(tmp_path):
+    """``actuation.ramp_time_s``: the drive's jerk-limited ends, linear shape only, at most half
+    the shortest phase (here the 1-s pull of the 30-bpm bench)."""
+    text = (resources.files("cardiosoft") / "scenes" / "bench-dynamic.toml").read_text()
+    path = tmp_path / "ramped.toml"
+    path.write_text(text.replace("shape = \"linear\"", "shape = \"linear\"\nramp_time_s = 0.05"))
+    assert load_scene(path).ramp_time == 0.05
+    assert load_scene("bench-dynamic").ramp_time == 0.0
+    path.write_text(text.replace("shape = \"linear\"", "shape = \"cosine\"\nramp_time_s = 0.05"))
+    with pytest.raises(ValueError, match=r"ramp_time_s' = 0.05 s: allowed only with shape"):
+        load_scene(path)
+    path.write_text(text.replace("shape = \"linear\"", "shape = \"linear\"\nramp_time_s = 0.6"))
+    with pytest.raises(ValueError, match=r"ramp_time_s' = 0.6 s: allowed at most half"):
+        load_scene(path)
