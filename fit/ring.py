@@ -1,0 +1,272 @@
+"""The 30-bpm bench's ring, diagnosed on both shipped pumps, and the crosshead's motion as a
+candidate cause (issue #39, items 2 and 3a).
+
+    python -m fit.ring                 # the tables (about 1-2 min on 2 cores)
+    python -m fit.ring --out DIR       # and the figure, DIR/ring.png
+
+**The diagnosis**, per pump (ss950-v3, the default; ss950-v4, the membrane-true chamber, each
+with its own calibrated bench: the scenes' ``[calibration]`` tables) and afterload, from the
+30-bpm periodic beat:
+
+- where in the stroke the peak force falls: the pull x at the peak over the stroke;
+- the ring: the bench linearised at the instant of the peak, the chamber's compliance
+  ``C_ch = 1 / (d2U/dV2)`` and the column's ``C_col = A_col / (rho g)`` in series through the
+  line's inertance ``L = rho l / A_t + rho h / A_col`` with the resistance ``R = R_Poiseuille +
+  2 K |q|`` (the minor loss at the flow of that instant):
+  ``f = 1 / (2 pi sqrt(L C))``, ``C = C_ch C_col / (C_ch + C_col)``, ``zeta = R sqrt(C / L) / 2``.
+  The chamber's compliance is the static one: the shell's viscoelastic branch stiffens it at
+  the ring's frequency, so f is a lower bound;
+- the chamber's compliance dV/dP at that instant (ml/mmHg);
+- the force-displacement curve beside the paper's Fig. 10(d) description (section III-D): the
+  force "increases almost linearly with the applied displacement, until reaching its peak,
+  and then decreases as the inner folds appear". Reported: whether the curve falls after its
+  peak (by more than 5 % before the stroke ends) and the quasi-static peak's position.
+
+**The crosshead.** The model starts and stops the disk at full speed; a universal testing
+machine's crosshead accelerates over a finite time (``cardiosoft.actuation``: jerk-limited
+ramps, ``ramp_time``). The paper gives the speed (3000 mm/min, section II-F) but no
+acceleration, nor do the public data of the machine class (the INSTRON 5900 frames list speeds
+up to 2500-3000 mm/min and no acceleration), so the ramp is scanned over 0-200 ms, peak
+accelerations pi v_c / (2 t_r) of 0.4 m/s^2 and up. No value is fitted to the forces.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+PUMPS = ("ss950-v3", "ss950-v4")
+HEADS_MMHG = (30.0, 60.0, 90.0)
+RAMPS_S = (0.0, 0.025, 0.05, 0.1, 0.2)
+FALL_AFTER_PEAK = 0.05  # a curve "falls after its peak" when it ends 5 % below it
+
+
+def _bench(pump_name, **changes):
+    from cardiosoft.scene import load_scene
+
+    scene = load_scene("bench-dynamic", pump=pump_name)
+    return scene.replace(bpm=30.0, **changes) if changes else scene.replace(bpm=30.0)
+
+
+def linear_ring(scene, pump, traces, i):
+    """(f Hz, zeta, C_ch ml/mmHg) of the bench linearised at sample ``i`` of one member's
+    ``traces`` (module docstring)."""
+    import jax.numpy as jnp
+
+    from cardiosoft.circulation import Tube
+    from cardiosoft.units import RHO_WATER, G, ml_per_mmHg
+
+    volume, pull = traces["volume"][i], traces["pull"][i]
+    c_ch = 1.0 / float(pump.stiffness(jnp.asarray(volume), jnp.asarray(pull), scene.omega))
+    area = 0.25 * np.pi * scene.column_diameter**2
+    c_col = area / (RHO_WATER * G)
+    tube = Tube(scene.tube_length, scene.tube_diameter, loss_coefficient=scene.loss_coefficient)
+    height = traces["node_pressure"][i] / (RHO_WATER * G)
+    inertance = float(tube.line_inertance()) + RHO_WATER * height / area
+    loss = float(tube.line_loss()) * 2.0 * abs(traces["outflow"][i])
+    resistance = float(tube.line_resistance()) + loss
+    c = c_ch * c_col / (c_ch + c_col)
+    f = 1.0 / (2.0 * np.pi * np.sqrt(inertance * c))
+    zeta = 0.5 * resistance * np.sqrt(c / inertance)
+    return f, zeta, c_ch / ml_per_mmHg
+
+
+def diagnose(pump_name):
+    """One row per afterload: the dicts of the module docstring's diagnosis, and the traces."""
+    from cardiosoft.batch import solve_beats
+    from cardiosoft.pump import load
+    from cardiosoft.static import column_stiffness, quasi_static_stroke
+    from cardiosoft.units import RHO_WATER, G, mmHg
+
+    scene, pump = _bench(pump_name), load(pump_name)
+    heads = np.asarray(HEADS_MMHG) * mmHg
+    out = solve_beats(scene, afterload=heads, save="traces", pump=pump)
+    traces = {k: np.asarray(v) for k, v in out.traces.items()}
+    k = column_stiffness(0.25 * np.pi * scene.column_diameter**2, RHO_WATER, G)
+    length = scene.shortening * float(pump.cable_length(scene.omega))
+    strokes = [quasi_static_stroke(pump, scene.omega, length, h, k, n_points=201) for h in heads]
+    friction = np.exp(scene.cable_friction)  # the load cell's reading while pulling
+    static = {
+        "pull": np.stack([np.asarray(s.x) for s in strokes]),
+        "force": friction * np.stack([np.asarray(s.force) for s in strokes]),
+    }
+    stroke = float(np.max(traces["pull"]))
+    rows = []
+    for m, head in enumerate(HEADS_MMHG):
+        member = {k: v[m] for k, v in traces.items()}
+        in_pull = np.flatnonzero(np.diff(member["pull"]) > 0)
+        pulling = np.arange(in_pull[-1] + 2)
+        i = int(pulling[np.argmax(member["cable_force"][pulling])])
+        f, zeta, c_ch = linear_ring(scene, pump, member, i)
+        force = member["cable_force"][pulling]
+        q_force, q_pull = static["force"][m], static["pull"][m]
+        rows.append(
+            {
+                "pump": pump_name,
+                "afterload_mmHg": head,
+                "peak_force_N": float(member["cable_force"][i]),
+                "peak_at_stroke": float(member["pull"][i] / stroke),
+                "ring_hz": f,
+                "damping_ratio": zeta,
+                "compliance_ml_per_mmHg": c_ch,
+                "falls_after_peak": bool(force[-1] < (1.0 - FALL_AFTER_PEAK) * force.max()),
+                "static_peak_at_stroke": float(q_pull[np.argmax(q_force)] / stroke),
+                "dynamic_sv_ml": float(out.metrics.stroke_volume[m]) / 1e-6,
+            }
+        )
+    return rows, traces, static
+
+
+def crosshead(pump_name):
+    """Peak forces (N) and dynamic SVs (ml) per ramp time of :data:`RAMPS_S`, then with the
+    raised-cosine pull (the same stroke and period): ``{label: (forces, svs)}``."""
+    from cardiosoft.batch import solve_beats
+    from cardiosoft.pump import load
+    from cardiosoft.units import mmHg
+
+    pump = load(pump_name)
+    heads = np.asarray(HEADS_MMHG) * mmHg
+    cases = {f"ramp {1e3 * r:.0f} ms": {"ramp_time": r} for r in RAMPS_S}
+    cases["raised cosine"] = {"shape": "cosine"}
+    results = {}
+    for label, changes in cases.items():
+        out = solve_beats(_bench(pump_name, **changes), afterload=heads, save="metrics", pump=pump)
+        results[label] = (
+            np.asarray(out.metrics.peak_force),
+            np.asarray(out.metrics.stroke_volume) / 1e-6,
+        )
+    return results
+
+
+def _paper():
+    from cardiosoft import datasets
+
+    bench = datasets.load_paper_data().fig10_bench
+    return np.asarray(bench["peak_force_N"], float), np.asarray(bench["dynamic_sv_ml"], float)
+
+
+def table(header, units, rows) -> str:
+    """Right-aligned columns under a header and a units line."""
+    lines = [header, units, *rows]
+    widths = [max(len(str(line[j])) for line in lines) for j in range(len(header))]
+    return "\n".join("  ".join(str(c).rjust(w) for c, w in zip(line, widths, strict=True))
+                     for line in lines)
+
+
+def diagnosis_table(rows) -> str:
+    paper_force, _ = _paper()
+    header = ["pump", "afterload", "peak force", "paper", "at stroke", "ring", "zeta",
+              "dV/dP", "falls after", "static peak"]
+    units = ["", "mmHg", "N", "N", "-", "Hz", "-", "ml/mmHg", "peak", "at stroke"]
+    body = [
+        [
+            r["pump"], f"{r['afterload_mmHg']:g}", f"{r['peak_force_N']:.1f}",
+            f"{paper_force[i % 3]:.1f}", f"{r['peak_at_stroke']:.2f}", f"{r['ring_hz']:.2f}",
+            f"{r['damping_ratio']:.2f}", f"{r['compliance_ml_per_mmHg']:.3f}",
+            "yes" if r["falls_after_peak"] else "no", f"{r['static_peak_at_stroke']:.2f}",
+        ]
+        for i, r in enumerate(rows)
+    ]
+    return table(header, units, body)
+
+
+def crosshead_table(results_by_pump) -> str:
+    paper_force, paper_sv = _paper()
+    header = ["pump", "pull", "peak force 30/60/90", "dynamic SV 30/60/90"]
+    units = ["", "", "N", "ml"]
+    body = [["paper", "", " / ".join(f"{v:.1f}" for v in paper_force),
+             " / ".join(f"{v:.1f}" for v in paper_sv)]]
+    for pump, results in results_by_pump.items():
+        for label, (force, sv) in results.items():
+            body.append([pump, label, " / ".join(f"{v:.1f}" for v in force),
+                         " / ".join(f"{v:.1f}" for v in sv)])
+    return table(header, units, body)
+
+
+def figure(path, diagnosed, results_by_pump):
+    """Force-displacement at 30 bpm per pump (and the quasi-static pull, dashed), peaks
+    marked; peak force against the ramp time, the paper's forces as lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cardiosoft.files import atomic_path
+
+    paper_force, _ = _paper()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    colours = ("tab:blue", "tab:orange", "tab:green")
+    for ax, (pump, (rows, traces, static)) in zip(axes[:2], diagnosed.items(), strict=True):
+        for m, (row, colour) in enumerate(zip(rows, colours, strict=True)):
+            pulling = np.diff(traces["pull"][m], prepend=-1.0) > 0
+            x, force = traces["pull"][m][pulling] * 1e3, traces["cable_force"][m][pulling]
+            ax.plot(x, force, color=colour, label=f"{row['afterload_mmHg']:g} mmHg, 30 bpm")
+            ax.plot(static["pull"][m] * 1e3, static["force"][m], "--", color=colour, lw=1)
+            ax.plot(x[np.argmax(force)], force.max(), "o", color=colour)
+            ax.axhline(paper_force[m], color=colour, lw=0.6, ls=":")
+        ax.set(title=f"{pump}: force-displacement (dashed: quasi-static; dotted: paper's peak)",
+               xlabel="cable pull x (mm)", ylabel="cable force (N)")
+        ax.title.set_fontsize(9)
+        ax.legend(fontsize=8)
+    ax = axes[2]
+    ramps = [1e3 * r for r in RAMPS_S]
+    for pump, style in zip(results_by_pump, ("-o", "--s"), strict=True):
+        results = results_by_pump[pump]
+        forces = np.array([results[f"ramp {r:.0f} ms"][0] for r in ramps])
+        for m, colour in enumerate(colours):
+            ax.plot(ramps, forces[:, m], style, color=colour,
+                    label=f"{pump}, {HEADS_MMHG[m]:g} mmHg")
+    for m, colour in enumerate(colours):
+        ax.axhline(paper_force[m], color=colour, lw=0.6, ls=":")
+    ax.set(title="peak force against the crosshead's ramp time (30 bpm)",
+           xlabel="ramp time (ms)", ylabel="peak force (N)")
+    ax.title.set_fontsize(9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m fit.ring", description=__doc__.split("\n")[0])
+    parser.add_argument("--out", metavar="DIR", help="also write DIR/ring.png")
+    parser.add_argument("--force", action="store_true", help="overwrite DIR/ring.png")
+    args = parser.parse_args(argv)
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from cardiosoft.files import refuse_overwrite
+
+    out = None
+    if args.out:
+        out = Path(args.out) / "ring.png"
+        try:
+            refuse_overwrite(out, args.force)
+        except ValueError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+    start = time.perf_counter()
+    diagnosed, crossheads = {}, {}
+    for pump in PUMPS:
+        print(f"{pump}: the 30-bpm beats and the ramp scan ...", file=sys.stderr)
+        diagnosed[pump] = diagnose(pump)
+        crossheads[pump] = crosshead(pump)
+    print("The ring at 30 bpm, the bench linearised at the instant of the peak force")
+    print(diagnosis_table([row for rows, _, _ in diagnosed.values() for row in rows]))
+    print("\nThe crosshead's motion: jerk-limited ramps (ramp time), and the raised-cosine pull")
+    print(crosshead_table(crossheads))
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        figure(out, diagnosed, crossheads)
+        print(f"wrote {out}", file=sys.stderr)
+    print(f"done in {time.perf_counter() - start:.0f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
