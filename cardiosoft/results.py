@@ -115,7 +115,10 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
       to NaN;
     - a negative cable force: the prescribed pull would need the cables to push. A real cable
       goes slack instead and the shell then moves by itself, which this displacement-controlled
-      model does not simulate; the result is reported, flagged, not corrected.
+      model does not simulate; the result is reported, flagged, not corrected;
+    - a pump volume below zero (a beat whose column swings the chamber empty and on): the
+      surrogate has no floor where the shell's walls meet, so the beat's volumes are not
+      physical, and the ejection fraction, which would exceed 1, is set to NaN.
     """
     out = []
     lo, hi = domain.pressure_mmHg
@@ -135,6 +138,14 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
         out.append(
             f"cable force down to {metrics['min_cable_force']:.1f} N: the pull needs a cable that "
             "pushes (a real cable goes slack; not modelled)"
+        )
+    if metrics.get("esv", 0.0) < 0.0:
+        ef = metrics.get("ejection_fraction", math.nan)
+        metrics["ejection_fraction"] = math.nan
+        out.append(
+            f"pump volume down to {metrics['esv'] / ml:.1f} ml, below zero: the surrogate has no "
+            f"floor where the shell's walls meet, so the beat's volumes are not physical; EF "
+            f"(SV / EDV = {ef:.3g}) reported as none"
         )
     _energy_flags(metrics, out)
     for key in ("efficiency", "static_efficiency"):

@@ -51,7 +51,8 @@ def parser(prog: str | None = None):
         "Simulate the cable-driven soft pump beating against an afterload.",
         prog=prog,
         flags="pump pressures outside the surrogate's fitted range, a cable that would push, "
-        "an efficiency that is not meaningful, a transient after --beats N",
+        "a pump volume below zero, an efficiency that is not meaningful, a transient after "
+        "--beats N",
         failure="a member's solve failed or it did not reach the periodic steady state",
         output="summary.json",
     )

@@ -72,6 +72,20 @@ def test_a_cable_that_would_push_is_flagged():
     assert flag.startswith("cable force down to -3.2 N") and "cable that pushes" in flag
 
 
+def test_a_pump_emptied_below_zero_is_flagged_and_reports_no_ejection_fraction():
+    """At 120 bpm the ss950-v3 bench swung the chamber to -8.3 ml and printed EF 1.05: a
+    volume below zero is flagged and its EF, SV / EDV above 1, reported as none; at zero and
+    above, the EF stands."""
+    ml = 1e-6
+    assert flags(beat(esv=0.0, edv=60 * ml, ejection_fraction=1.0), Domain()) == ()
+    metrics = beat(esv=-8.3 * ml, edv=165.3 * ml, stroke_volume=173.6 * ml,
+                   ejection_fraction=173.6 / 165.3)
+    out = record(metrics)
+    assert math.isnan(metrics["ejection_fraction"]) and out["ef"] is None
+    (flag,) = out["flags"]
+    assert flag.startswith("pump volume down to -8.3 ml, below zero") and "1.05" in flag
+
+
 @pytest.mark.parametrize(
     ("changes", "why"),
     [
