@@ -22,6 +22,27 @@ with its own calibrated bench: the scenes' ``[calibration]`` tables) and afterlo
   and then decreases as the inner folds appear". Reported: whether the curve falls after its
   peak (by more than 5 % before the stroke ends) and the quasi-static peak's position.
 
+**The folded shell's softness** (candidate b). With E_u pinned by the membrane (ss950-v4),
+the static SVs ask for kappa = 1.28 (its fit; ss950-v3 holds 0.81). Reported per run: how far
+into the stroke the chamber stays taut (its volume above the unloaded V_u, where the membrane
+is stretched and its softening acts), and whether the peak falls while it is taut.
+
+**The compliant tube and the silicone's loss** (candidates c and d), as orders of magnitude at
+each pump's 60-mmHg ring, from stated physics and never from the forces:
+
+- the tube's wall compliance ``2 pi r^3 l / (E_t h)`` against the chamber's, its wave
+  transit time ``l / c`` (Moens-Korteweg, ``c = sqrt(E_t h / (2 rho r))``) against the ring's
+  period, and the damping that unsteady friction adds: at Womersley number
+  ``alpha = r sqrt(omega rho / mu)`` the oscillatory resistance is ``alpha / (4 sqrt 2)``
+  Poiseuille's (Womersley 1955, large alpha). ``E_t`` from Gent's relation for a Shore 50-70A
+  silicone tube (2.2-5.4 MPa, :data:`TUBE_MODULUS_PA`), walls of 1.5-3 mm;
+- the silicone's loss factor, ``zeta = tan(delta) / 2`` times the chamber's share of the
+  ring's strain energy, ``C_col / (C_ch + C_col)`` (the same volume swings through both, so
+  the stiffer chamber holds most of it): tan(delta) 0.05-0.15 is the range of platinum-cure
+  silicone elastomers at 1-10 Hz (Smooth-On publishes none for Smooth-Sil 950), beside the
+  calibrated viscoelastic branch's own loss factor at the ring's frequency and the damping it
+  gives (which the simulated bench has and the linearised ring's zeta leaves out).
+
 **The crosshead.** The model starts and stops the disk at full speed; a universal testing
 machine's crosshead accelerates over a finite time (``cardiosoft.actuation``: jerk-limited
 ramps, ``ramp_time``). The paper gives the speed (3000 mm/min, section II-F) but no
@@ -42,6 +63,9 @@ import numpy as np
 PUMPS = ("ss950-v3", "ss950-v4")
 HEADS_MMHG = (30.0, 60.0, 90.0)
 RAMPS_S = (0.0, 0.025, 0.05, 0.1, 0.2)
+TUBE_MODULUS_PA = (2.2e6, 5.4e6)  # Shore 50A and 70A silicone by Gent's relation
+TUBE_WALL_M = (1.5e-3, 3e-3)
+SILICONE_LOSS_FACTOR = (0.05, 0.15)
 FALL_AFTER_PEAK = 0.05  # a curve "falls after its peak" when it ends 5 % below it
 
 
@@ -75,6 +99,92 @@ def linear_ring(scene, pump, traces, i):
     return f, zeta, c_ch / ml_per_mmHg
 
 
+def branch_loss_factor(scene, pump, traces, i, f) -> float:
+    """tan(delta) of the chamber with the calibrated viscoelastic branch (a standard linear
+    solid, ``cardiosoft.circuit.ShellViscoelasticity``: spring r E(x) and time tau beside the
+    chamber's stiffness k) at frequency f (Hz), at sample ``i``."""
+    if not scene.has("shell_viscoelasticity"):
+        return 0.0
+    import jax.numpy as jnp
+
+    volume, pull = jnp.asarray(traces["volume"][i]), jnp.asarray(traces["pull"][i])
+    k = float(pump.stiffness(volume, pull, scene.omega))
+    branch = scene.viscoelastic_ratio * float(pump.chamber_elastance(pull, scene.omega))
+    wt = 2.0 * np.pi * f * scene.relaxation_time
+    storage = k + branch * wt**2 / (1.0 + wt**2)
+    return branch * wt / (1.0 + wt**2) / storage
+
+
+def candidates(scene, row) -> dict:
+    """Orders of magnitude of candidates (c) and (d) at one run's ring (module docstring):
+    ranges over :data:`TUBE_MODULUS_PA`, :data:`TUBE_WALL_M`, :data:`SILICONE_LOSS_FACTOR`."""
+    from cardiosoft.units import MU_WATER, RHO_WATER, G, ml_per_mmHg
+
+    r, length = 0.5 * scene.tube_diameter, scene.tube_length
+    e_t, wall = np.array(TUBE_MODULUS_PA), np.array(TUBE_WALL_M)
+    stiff, soft = e_t[1] * wall[1], e_t[0] * wall[0]  # E_t h at the two ends
+    c_tube = 2.0 * np.pi * r**3 * length / np.array([stiff, soft]) / ml_per_mmHg
+    speed = np.sqrt(np.array([soft, stiff]) / (2.0 * RHO_WATER * r))
+    omega = 2.0 * np.pi * row["ring_hz"]
+    alpha = r * np.sqrt(omega * RHO_WATER / MU_WATER)
+    poiseuille = 8.0 * MU_WATER * length / (np.pi * r**4)
+    c_col = 0.25 * np.pi * scene.column_diameter**2 / (RHO_WATER * G) / ml_per_mmHg
+    c_ch = row["compliance_ml_per_mmHg"]
+    c = c_ch * c_col / (c_ch + c_col) * ml_per_mmHg
+    inertance = 1.0 / ((2.0 * np.pi * row["ring_hz"]) ** 2 * c)
+    unsteady = (alpha / (4.0 * np.sqrt(2.0)) - 1.0) * poiseuille  # beyond Poiseuille's (Pa s/m^3)
+    zeta_womersley = 0.5 * unsteady * np.sqrt(c / inertance)
+    share = c_col / (c_ch + c_col)  # the chamber's share of the ring's strain energy
+    return {
+        "tube_compliance_ml_per_mmHg": tuple(c_tube),
+        "chamber_compliance_ml_per_mmHg": c_ch,
+        "transit_ms": tuple(1e3 * length / speed[::-1]),
+        "ring_period_ms": 1e3 / row["ring_hz"],
+        "womersley": alpha,
+        "zeta_unsteady_friction": zeta_womersley,
+        "zeta_silicone": tuple(0.5 * np.array(SILICONE_LOSS_FACTOR) * share),
+        "zeta_ring": row["damping_ratio"],
+        "branch_loss_factor": row["loss_factor"],
+        "zeta_branch": 0.5 * row["loss_factor"] * share,
+    }
+
+
+def candidates_table(scenes, rows) -> str:
+    header = [
+        "pump",
+        "tube C",
+        "chamber C",
+        "transit",
+        "ring period",
+        "alpha",
+        "zeta: unsteady",
+        "silicone",
+        "the ring's",
+        "branch tan d",
+        "branch zeta",
+    ]
+    units = ["", "ml/mmHg", "ml/mmHg", "ms", "ms", "-", "friction", "loss", "", "at ring", ""]
+    body = []
+    for pump, row in rows.items():
+        c = candidates(scenes[pump], row)
+        body.append(
+            [
+                pump,
+                "{:.3f}-{:.3f}".format(*c["tube_compliance_ml_per_mmHg"]),
+                f"{c['chamber_compliance_ml_per_mmHg']:.3f}",
+                "{:.0f}-{:.0f}".format(*c["transit_ms"]),
+                f"{c['ring_period_ms']:.0f}",
+                f"{c['womersley']:.0f}",
+                f"+{c['zeta_unsteady_friction']:.4f}",
+                "+{:.3f}-{:.3f}".format(*c["zeta_silicone"]),
+                f"{c['zeta_ring']:.3f}",
+                f"{c['branch_loss_factor']:.3f}",
+                f"+{c['zeta_branch']:.3f}",
+            ]
+        )
+    return table(header, units, body)
+
+
 def diagnose(pump_name):
     """One row per afterload: the dicts of the module docstring's diagnosis, and the traces."""
     from cardiosoft.batch import solve_beats
@@ -103,6 +213,8 @@ def diagnose(pump_name):
         i = int(pulling[np.argmax(member["cable_force"][pulling])])
         f, zeta, c_ch = linear_ring(scene, pump, member, i)
         force = member["cable_force"][pulling]
+        slack = np.flatnonzero(member["volume"][pulling] <= float(pump.unloaded_volume))
+        taut_until = float(member["pull"][slack[0]] / stroke) if slack.size else 1.0
         q_force, q_pull = static["force"][m], static["pull"][m]
         rows.append(
             {
@@ -116,6 +228,8 @@ def diagnose(pump_name):
                 "falls_after_peak": bool(force[-1] < (1.0 - FALL_AFTER_PEAK) * force.max()),
                 "static_peak_at_stroke": float(q_pull[np.argmax(q_force)] / stroke),
                 "dynamic_sv_ml": float(out.metrics.stroke_volume[m]) / 1e-6,
+                "taut_until": taut_until,
+                "loss_factor": branch_loss_factor(scene, pump, member, i, f),
             }
         )
     return rows, traces, static
@@ -153,21 +267,40 @@ def table(header, units, rows) -> str:
     """Right-aligned columns under a header and a units line."""
     lines = [header, units, *rows]
     widths = [max(len(str(line[j])) for line in lines) for j in range(len(header))]
-    return "\n".join("  ".join(str(c).rjust(w) for c, w in zip(line, widths, strict=True))
-                     for line in lines)
+    return "\n".join(
+        "  ".join(str(c).rjust(w) for c, w in zip(line, widths, strict=True)) for line in lines
+    )
 
 
 def diagnosis_table(rows) -> str:
     paper_force, _ = _paper()
-    header = ["pump", "afterload", "peak force", "paper", "at stroke", "ring", "zeta",
-              "dV/dP", "falls after", "static peak"]
-    units = ["", "mmHg", "N", "N", "-", "Hz", "-", "ml/mmHg", "peak", "at stroke"]
+    header = [
+        "pump",
+        "afterload",
+        "peak force",
+        "paper",
+        "at stroke",
+        "ring",
+        "zeta",
+        "dV/dP",
+        "falls after",
+        "static peak",
+        "taut until",
+    ]
+    units = ["", "mmHg", "N", "N", "-", "Hz", "-", "ml/mmHg", "peak", "at stroke", "stroke"]
     body = [
         [
-            r["pump"], f"{r['afterload_mmHg']:g}", f"{r['peak_force_N']:.1f}",
-            f"{paper_force[i % 3]:.1f}", f"{r['peak_at_stroke']:.2f}", f"{r['ring_hz']:.2f}",
-            f"{r['damping_ratio']:.2f}", f"{r['compliance_ml_per_mmHg']:.3f}",
-            "yes" if r["falls_after_peak"] else "no", f"{r['static_peak_at_stroke']:.2f}",
+            r["pump"],
+            f"{r['afterload_mmHg']:g}",
+            f"{r['peak_force_N']:.1f}",
+            f"{paper_force[i % 3]:.1f}",
+            f"{r['peak_at_stroke']:.2f}",
+            f"{r['ring_hz']:.2f}",
+            f"{r['damping_ratio']:.2f}",
+            f"{r['compliance_ml_per_mmHg']:.3f}",
+            "yes" if r["falls_after_peak"] else "no",
+            f"{r['static_peak_at_stroke']:.2f}",
+            f"{r['taut_until']:.2f}",
         ]
         for i, r in enumerate(rows)
     ]
@@ -178,12 +311,24 @@ def crosshead_table(results_by_pump) -> str:
     paper_force, paper_sv = _paper()
     header = ["pump", "pull", "peak force 30/60/90", "dynamic SV 30/60/90"]
     units = ["", "", "N", "ml"]
-    body = [["paper", "", " / ".join(f"{v:.1f}" for v in paper_force),
-             " / ".join(f"{v:.1f}" for v in paper_sv)]]
+    body = [
+        [
+            "paper",
+            "",
+            " / ".join(f"{v:.1f}" for v in paper_force),
+            " / ".join(f"{v:.1f}" for v in paper_sv),
+        ]
+    ]
     for pump, results in results_by_pump.items():
         for label, (force, sv) in results.items():
-            body.append([pump, label, " / ".join(f"{v:.1f}" for v in force),
-                         " / ".join(f"{v:.1f}" for v in sv)])
+            body.append(
+                [
+                    pump,
+                    label,
+                    " / ".join(f"{v:.1f}" for v in force),
+                    " / ".join(f"{v:.1f}" for v in sv),
+                ]
+            )
     return table(header, units, body)
 
 
@@ -208,8 +353,11 @@ def figure(path, diagnosed, results_by_pump):
             ax.plot(static["pull"][m] * 1e3, static["force"][m], "--", color=colour, lw=1)
             ax.plot(x[np.argmax(force)], force.max(), "o", color=colour)
             ax.axhline(paper_force[m], color=colour, lw=0.6, ls=":")
-        ax.set(title=f"{pump}: force-displacement (dashed: quasi-static; dotted: paper's peak)",
-               xlabel="cable pull x (mm)", ylabel="cable force (N)")
+        ax.set(
+            title=f"{pump}: force-displacement (dashed: quasi-static; dotted: paper's peak)",
+            xlabel="cable pull x (mm)",
+            ylabel="cable force (N)",
+        )
         ax.title.set_fontsize(9)
         ax.legend(fontsize=8)
     ax = axes[2]
@@ -218,12 +366,16 @@ def figure(path, diagnosed, results_by_pump):
         results = results_by_pump[pump]
         forces = np.array([results[f"ramp {r:.0f} ms"][0] for r in ramps])
         for m, colour in enumerate(colours):
-            ax.plot(ramps, forces[:, m], style, color=colour,
-                    label=f"{pump}, {HEADS_MMHG[m]:g} mmHg")
+            ax.plot(
+                ramps, forces[:, m], style, color=colour, label=f"{pump}, {HEADS_MMHG[m]:g} mmHg"
+            )
     for m, colour in enumerate(colours):
         ax.axhline(paper_force[m], color=colour, lw=0.6, ls=":")
-    ax.set(title="peak force against the crosshead's ramp time (30 bpm)",
-           xlabel="ramp time (ms)", ylabel="peak force (N)")
+    ax.set(
+        title="peak force against the crosshead's ramp time (30 bpm)",
+        xlabel="ramp time (ms)",
+        ylabel="peak force (N)",
+    )
     ax.title.set_fontsize(9)
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -258,6 +410,9 @@ def main(argv=None) -> int:
         crossheads[pump] = crosshead(pump)
     print("The ring at 30 bpm, the bench linearised at the instant of the peak force")
     print(diagnosis_table([row for rows, _, _ in diagnosed.values() for row in rows]))
+    print("\nCandidates (c) and (d) at the 60-mmHg ring, orders of magnitude (module docstring)")
+    scenes = {pump: _bench(pump) for pump in PUMPS}
+    print(candidates_table(scenes, {pump: diagnosed[pump][0][1] for pump in PUMPS}))
     print("\nThe crosshead's motion: jerk-limited ramps (ramp time), and the raised-cosine pull")
     print(crosshead_table(crossheads))
     if out is not None:
