@@ -55,8 +55,11 @@ def pull_phase(result, member):
 
 
 def finite_metrics(member):
-    """Every metric finite, or set to NaN on purpose and flagged (an efficiency that is not one)."""
+    """Every metric finite, or set to NaN on purpose and flagged (an efficiency that is not one;
+    the EF of a pump swung below zero volume)."""
     flagged = {f.split(" P_a SV / M")[0].replace(" ", "_") for f in member.flags}
+    if any("EF (SV / EDV" in f for f in member.flags):
+        flagged.add("ejection_fraction")
     return all(math.isfinite(v) or k in flagged for k, v in member.metrics.items())
 
 
