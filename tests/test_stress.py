@@ -591,16 +591,3 @@ def test_quick_suite_passes(tmp_path):
     assert [loops[f"closed_loop/heart/{b}bpm"]["status"] for b in (60, 180)] == ["passed"] * 2
     row = next(line.split() for line in proc.stdout.splitlines() if line.startswith("closed_loop"))
     assert row[1:2] == ["6"] and row[4] == "0", row  # cases, failed
-
-
-def test_a_pump_swung_below_zero_volume_counts_as_extrapolated():
-    """The flag of a volume below zero (cardiosoft.results.flags) excuses, as an extrapolation,
-    the raw EF above 1 and the negative ESV that the physical checks would otherwise report."""
-    from cardiosoft.pump import Domain
-    from cardiosoft.results import flags
-    from cardiosoft.stress.checks import flag_kinds
-
-    ml = 1e-6
-    metrics = {"edv": 165.3 * ml, "esv": -8.3 * ml, "ejection_fraction": 1.05}
-    assert "extrapolated" in flag_kinds(flags(metrics, Domain()))
-    assert flag_kinds(flags({"edv": 165.3 * ml, "esv": 8.3 * ml}, Domain())) == set()

@@ -110,8 +110,8 @@ def flag_kinds(flags: Iterable[str]) -> set[str]:
     """What the flags of :func:`cardiosoft.results.flags` cover, read from their wording."""
     kinds = set()
     for f in flags:
-        if "pump pressure" in f or "extrapolat" in f or "pump volume" in f:
-            kinds.add("extrapolated")  # a volume below zero: the surrogate has no floor there
+        if "pump pressure" in f or "extrapolat" in f:
+            kinds.add("extrapolated")
         if "static" in f and ("pressure" in f or "extrapolat" in f):
             kinds.add("static extrapolated")
         if "cable force" in f:
