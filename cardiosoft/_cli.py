@@ -11,7 +11,6 @@ command's own process is set up by :func:`prepare_process` (XLA flags, the compi
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import tempfile
@@ -122,25 +121,6 @@ def values_argument(items):
     for item in items:
         out += parse_values(item, "value")
     return out
-
-
-def fmt(value, spec: str) -> str:
-    """A number of a printed table: ``-`` for none or a non-finite one."""
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "-"
-    return format(value, spec)
-
-
-def table(header, units, rows) -> str:
-    """A printed table: a header line, a units line, then the rows, each column right-aligned."""
-    widths = [max(len(x) for x in col) for col in zip(header, units, *rows, strict=True)]
-    line = "  ".join
-    out = [
-        line(h.rjust(w) for h, w in zip(header, widths, strict=True)),
-        line(u.rjust(w) for u, w in zip(units, widths, strict=True)),
-    ]
-    out += [line(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
-    return "\n".join(out)
 
 
 # ------------------------------------------------------------------------------ the process

@@ -8,15 +8,27 @@
   stderr and ``flags`` in the JSON the command writes; exit status 0 unless ``--strict``;
 - **failures** (a member whose solve failed, or that did not reach the periodic steady state it
   was asked to reach; a hard case that fails): ``failed: ...`` on stderr, exit status 1.
+
+Its printed tables (:func:`table`, :func:`fmt`) are the commands' and the studies' in ``fit/``.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 
 from cardiosoft import progress
 
-__all__ = ["EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_OK", "Console", "fail", "report_members"]
+__all__ = [
+    "EXIT_BAD_INPUT",
+    "EXIT_FAILED",
+    "EXIT_OK",
+    "Console",
+    "fail",
+    "fmt",
+    "report_members",
+    "table",
+]
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -94,3 +106,22 @@ def report_members(console: Console, members, *, steady_asked: bool) -> None:
             (console.flag if transient and not steady_asked else console.fail)(m.label, m.message)
         for what in m.flags:
             console.flag(m.label, what)
+
+
+def fmt(value, spec: str) -> str:
+    """A number of a printed table: ``-`` for none or a non-finite one."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value, spec)
+
+
+def table(header, units, rows) -> str:
+    """A printed table: a header line, a units line, then the rows, each column right-aligned."""
+    widths = [max(len(x) for x in col) for col in zip(header, units, *rows, strict=True)]
+    line = "  ".join
+    out = [
+        line(h.rjust(w) for h, w in zip(header, widths, strict=True)),
+        line(u.rjust(w) for u, w in zip(units, widths, strict=True)),
+    ]
+    out += [line(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
+    return "\n".join(out)

@@ -191,7 +191,7 @@ def _heading(scene) -> str:
 def _table(records, scene, paper, *, bands: bool = False) -> str:
     """The run's table; with ``bands``, only the metrics with a ``<key>_band`` (and the member
     column), each cell the best estimate and its band ``[low, high]``."""
-    from cardiosoft._cli import fmt, table
+    from cardiosoft.console import fmt, table
 
     if _is_loop(scene):
         from cardiosoft.loop_records import loop_table

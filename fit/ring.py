@@ -54,9 +54,11 @@ accelerations pi v_c / (2 t_r) of 0.4 m/s^2 and up. No value is fitted to the fo
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -76,27 +78,42 @@ def _bench(pump_name, **changes):
     return scene.replace(bpm=30.0, **changes) if changes else scene.replace(bpm=30.0)
 
 
-def linear_ring(scene, pump, traces, i):
-    """(f Hz, zeta, C_ch ml/mmHg) of the bench linearised at sample ``i`` of one member's
-    ``traces`` (module docstring)."""
+class Ring(NamedTuple):
+    """The bench linearised at one instant (SI but the frequency): module docstring."""
+
+    frequency: float  # Hz
+    damping_ratio: float
+    chamber_compliance: float  # C_ch = 1 / (d2U/dV2), m^3/Pa
+    column_compliance: float  # C_col = A_col / (rho g), m^3/Pa
+    inertance: float  # L, Pa s^2/m^3
+
+    @property
+    def compliance(self) -> float:
+        """C_ch and C_col in series (m^3/Pa)."""
+        return 1.0 / (1.0 / self.chamber_compliance + 1.0 / self.column_compliance)
+
+
+def linear_ring(scene, pump, traces, i) -> Ring:
+    """The bench linearised at sample ``i`` of one member's ``traces`` (module docstring)."""
     import jax.numpy as jnp
 
     from cardiosoft.circulation import Tube
-    from cardiosoft.units import RHO_WATER, G, ml_per_mmHg
+    from cardiosoft.units import RHO_WATER, G
 
     volume, pull = traces["volume"][i], traces["pull"][i]
     c_ch = 1.0 / float(pump.stiffness(jnp.asarray(volume), jnp.asarray(pull), scene.omega))
     area = 0.25 * np.pi * scene.column_diameter**2
-    c_col = area / (RHO_WATER * G)
     tube = Tube(scene.tube_length, scene.tube_diameter, loss_coefficient=scene.loss_coefficient)
     height = traces["node_pressure"][i] / (RHO_WATER * G)
     inertance = float(tube.line_inertance()) + RHO_WATER * height / area
     loss = float(tube.line_loss()) * 2.0 * abs(traces["outflow"][i])
     resistance = float(tube.line_resistance()) + loss
-    c = c_ch * c_col / (c_ch + c_col)
-    f = 1.0 / (2.0 * np.pi * np.sqrt(inertance * c))
-    zeta = 0.5 * resistance * np.sqrt(c / inertance)
-    return f, zeta, c_ch / ml_per_mmHg
+    ring = Ring(math.nan, math.nan, c_ch, area / (RHO_WATER * G), inertance)
+    c = ring.compliance
+    return ring._replace(
+        frequency=1.0 / (2.0 * np.pi * np.sqrt(inertance * c)),
+        damping_ratio=0.5 * resistance * np.sqrt(c / inertance),
+    )
 
 
 def branch_loss_factor(scene, pump, traces, i, f) -> float:
@@ -118,38 +135,38 @@ def branch_loss_factor(scene, pump, traces, i, f) -> float:
 def candidates(scene, row) -> dict:
     """Orders of magnitude of candidates (c) and (d) at one run's ring (module docstring):
     ranges over :data:`TUBE_MODULUS_PA`, :data:`TUBE_WALL_M`, :data:`SILICONE_LOSS_FACTOR`."""
-    from cardiosoft.units import MU_WATER, RHO_WATER, G, ml_per_mmHg
+    from cardiosoft.units import MU_WATER, RHO_WATER, ml_per_mmHg
+
+    ring = row["ring"]
 
     r, length = 0.5 * scene.tube_diameter, scene.tube_length
     e_t, wall = np.array(TUBE_MODULUS_PA), np.array(TUBE_WALL_M)
     stiff, soft = e_t[1] * wall[1], e_t[0] * wall[0]  # E_t h at the two ends
     c_tube = 2.0 * np.pi * r**3 * length / np.array([stiff, soft]) / ml_per_mmHg
     speed = np.sqrt(np.array([soft, stiff]) / (2.0 * RHO_WATER * r))
-    omega = 2.0 * np.pi * row["ring_hz"]
-    alpha = r * np.sqrt(omega * RHO_WATER / MU_WATER)
+    alpha = r * np.sqrt(2.0 * np.pi * ring.frequency * RHO_WATER / MU_WATER)
     poiseuille = 8.0 * MU_WATER * length / (np.pi * r**4)
-    c_col = 0.25 * np.pi * scene.column_diameter**2 / (RHO_WATER * G) / ml_per_mmHg
-    c_ch = row["compliance_ml_per_mmHg"]
-    c = c_ch * c_col / (c_ch + c_col) * ml_per_mmHg
-    inertance = 1.0 / ((2.0 * np.pi * row["ring_hz"]) ** 2 * c)
     unsteady = (alpha / (4.0 * np.sqrt(2.0)) - 1.0) * poiseuille  # beyond Poiseuille's (Pa s/m^3)
-    zeta_womersley = 0.5 * unsteady * np.sqrt(c / inertance)
-    share = c_col / (c_ch + c_col)  # the chamber's share of the ring's strain energy
+    zeta_womersley = 0.5 * unsteady * np.sqrt(ring.compliance / ring.inertance)
+    # the chamber's share of the ring's strain energy: the stiffer of the two holds more
+    share = ring.compliance / ring.chamber_compliance
     return {
         "tube_compliance_ml_per_mmHg": tuple(c_tube),
-        "chamber_compliance_ml_per_mmHg": c_ch,
+        "chamber_compliance_ml_per_mmHg": ring.chamber_compliance / ml_per_mmHg,
         "transit_ms": tuple(1e3 * length / speed[::-1]),
-        "ring_period_ms": 1e3 / row["ring_hz"],
+        "ring_period_ms": 1e3 / ring.frequency,
         "womersley": alpha,
         "zeta_unsteady_friction": zeta_womersley,
         "zeta_silicone": tuple(0.5 * np.array(SILICONE_LOSS_FACTOR) * share),
-        "zeta_ring": row["damping_ratio"],
+        "zeta_ring": ring.damping_ratio,
         "branch_loss_factor": row["loss_factor"],
         "zeta_branch": 0.5 * row["loss_factor"] * share,
     }
 
 
 def candidates_table(scenes, rows) -> str:
+    from cardiosoft.console import table
+
     header = [
         "pump",
         "tube C",
@@ -187,6 +204,8 @@ def candidates_table(scenes, rows) -> str:
 
 def diagnose(pump_name):
     """One row per afterload: the dicts of the module docstring's diagnosis, and the traces."""
+    import jax
+
     from cardiosoft.batch import solve_beats
     from cardiosoft.pump import load
     from cardiosoft.static import column_stiffness, quasi_static_stroke
@@ -198,12 +217,11 @@ def diagnose(pump_name):
     traces = {k: np.asarray(v) for k, v in out.traces.items()}
     k = column_stiffness(0.25 * np.pi * scene.column_diameter**2, RHO_WATER, G)
     length = scene.shortening * float(pump.cable_length(scene.omega))
-    strokes = [quasi_static_stroke(pump, scene.omega, length, h, k, n_points=201) for h in heads]
+    strokes = jax.jit(
+        jax.vmap(lambda h: quasi_static_stroke(pump, scene.omega, length, h, k, n_points=201))
+    )(heads)
     friction = np.exp(scene.cable_friction)  # the load cell's reading while pulling
-    static = {
-        "pull": np.stack([np.asarray(s.x) for s in strokes]),
-        "force": friction * np.stack([np.asarray(s.force) for s in strokes]),
-    }
+    static = {"pull": np.asarray(strokes.x), "force": friction * np.asarray(strokes.force)}
     stroke = float(np.max(traces["pull"]))
     rows = []
     for m, head in enumerate(HEADS_MMHG):
@@ -211,7 +229,7 @@ def diagnose(pump_name):
         in_pull = np.flatnonzero(np.diff(member["pull"]) > 0)
         pulling = np.arange(in_pull[-1] + 2)
         i = int(pulling[np.argmax(member["cable_force"][pulling])])
-        f, zeta, c_ch = linear_ring(scene, pump, member, i)
+        ring = linear_ring(scene, pump, member, i)
         force = member["cable_force"][pulling]
         slack = np.flatnonzero(member["volume"][pulling] <= float(pump.unloaded_volume))
         taut_until = float(member["pull"][slack[0]] / stroke) if slack.size else 1.0
@@ -222,14 +240,12 @@ def diagnose(pump_name):
                 "afterload_mmHg": head,
                 "peak_force_N": float(member["cable_force"][i]),
                 "peak_at_stroke": float(member["pull"][i] / stroke),
-                "ring_hz": f,
-                "damping_ratio": zeta,
-                "compliance_ml_per_mmHg": c_ch,
+                "ring": ring,
                 "falls_after_peak": bool(force[-1] < (1.0 - FALL_AFTER_PEAK) * force.max()),
                 "static_peak_at_stroke": float(q_pull[np.argmax(q_force)] / stroke),
                 "dynamic_sv_ml": float(out.metrics.stroke_volume[m]) / 1e-6,
                 "taut_until": taut_until,
-                "loss_factor": branch_loss_factor(scene, pump, member, i, f),
+                "loss_factor": branch_loss_factor(scene, pump, member, i, ring.frequency),
             }
         )
     return rows, traces, static
@@ -263,16 +279,10 @@ def _paper():
     return np.asarray(bench["peak_force_N"], float), np.asarray(bench["dynamic_sv_ml"], float)
 
 
-def table(header, units, rows) -> str:
-    """Right-aligned columns under a header and a units line."""
-    lines = [header, units, *rows]
-    widths = [max(len(str(line[j])) for line in lines) for j in range(len(header))]
-    return "\n".join(
-        "  ".join(str(c).rjust(w) for c, w in zip(line, widths, strict=True)) for line in lines
-    )
-
-
 def diagnosis_table(rows) -> str:
+    from cardiosoft.console import table
+    from cardiosoft.units import ml_per_mmHg
+
     paper_force, _ = _paper()
     header = [
         "pump",
@@ -295,9 +305,9 @@ def diagnosis_table(rows) -> str:
             f"{r['peak_force_N']:.1f}",
             f"{paper_force[i % 3]:.1f}",
             f"{r['peak_at_stroke']:.2f}",
-            f"{r['ring_hz']:.2f}",
-            f"{r['damping_ratio']:.2f}",
-            f"{r['compliance_ml_per_mmHg']:.3f}",
+            f"{r['ring'].frequency:.2f}",
+            f"{r['ring'].damping_ratio:.2f}",
+            f"{r['ring'].chamber_compliance / ml_per_mmHg:.3f}",
             "yes" if r["falls_after_peak"] else "no",
             f"{r['static_peak_at_stroke']:.2f}",
             f"{r['taut_until']:.2f}",
@@ -308,6 +318,8 @@ def diagnosis_table(rows) -> str:
 
 
 def crosshead_table(results_by_pump) -> str:
+    from cardiosoft.console import table
+
     paper_force, paper_sv = _paper()
     header = ["pump", "pull", "peak force 30/60/90", "dynamic SV 30/60/90"]
     units = ["", "", "N", "ml"]

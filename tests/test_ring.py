@@ -42,6 +42,6 @@ def test_linear_ring_is_the_free_ring_of_the_simulated_bench():
     crossings = _crossings(t[hold], traces["outflow"][hold])
     assert len(crossings) >= 10
     measured = 1.0 / (2.0 * np.mean(np.diff(crossings)))
-    f, zeta, compliance = ring.linear_ring(scene, pump, traces, int(hold[0]))
-    assert f == pytest.approx(measured, rel=0.05)
-    assert 0.0 < zeta < 0.2 and compliance > 0.0
+    linear = ring.linear_ring(scene, pump, traces, int(hold[0]))
+    assert linear.frequency == pytest.approx(measured, rel=0.05)
+    assert 0.0 < linear.damping_ratio < 0.2 and linear.chamber_compliance > 0.0

@@ -14,10 +14,8 @@ from cardiosoft._cli import (
     add_scene_option,
     allowed,
     command_parser,
-    fmt,
-    table,
 )
-from cardiosoft.console import Console, fail
+from cardiosoft.console import Console, fail, fmt, table
 from cardiosoft.design.problem import (
     DEFAULT_FREE,
     FREE_VARIABLES,

@@ -9,8 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from cardiosoft._cli import fmt, table
-from cardiosoft.console import Console, fail
+from cardiosoft.console import Console, fail, fmt, table
 from cardiosoft.design.problem import DEFAULT_FREE, TOLERANCE_ML
 
 __all__ = ["loop_arguments", "loop_report", "run_loop_design"]
