@@ -86,7 +86,7 @@ from cardiosoft.beat_solution import (
 )
 from cardiosoft.beat_solution import shard as _shard
 from cardiosoft.beat_solution import solution as _solution
-from cardiosoft.circuit import CableFriction, PumpCircuit, ShellViscoelasticity
+from cardiosoft.circuit import CableFriction, CableSlack, PumpCircuit, ShellViscoelasticity
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
 from cardiosoft.loop_batch import solve_loop
 from cardiosoft.loop_scene import LoopScene
@@ -182,6 +182,7 @@ def scene_circuit(
         **scene.afterload.blocks(scene, _head(scene) if afterload is None else afterload),
         cable_friction=friction,
         viscoelasticity=viscoelasticity,
+        cable_slack=CableSlack() if scene.has("cable_slack") else None,
         energy=energy,
     )
 

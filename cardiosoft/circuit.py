@@ -33,9 +33,15 @@ import jax.numpy as jnp
 from cardiosoft.actuation import CablePull
 from cardiosoft.circulation import AbstractAfterload, AbstractPreload
 from cardiosoft.pump import Chamber, PumpSurrogate
+from cardiosoft.roots import implicit_scalar_root
 from cardiosoft.valves import Valve
 
-__all__ = ["CableFriction", "PumpCircuit", "ShellViscoelasticity"]
+__all__ = ["CableFriction", "CableSlack", "PumpCircuit", "ShellViscoelasticity"]
+
+SLACK_NEWTON_STEPS = 6
+"""Newton steps of :meth:`CableSlack.shell_pull`. From its start a taut root needs one, and
+the slackest instant of the bench at 120 bpm (90 mmHg: 1.7 mm of slack) three to reach
+round-off (measured 2026-12-05: 9e-4, 6e-8, 4e-15 mm after one, two, three)."""
 
 
 class CableFriction(eqx.Module):
@@ -54,6 +60,73 @@ class CableFriction(eqx.Module):
 
     def factor(self, velocity):
         return jnp.exp(self.exponent * jnp.tanh(velocity / self.speed_scale))
+
+
+class CableSlack(eqx.Module):
+    """A cable only pulls: the shell's own pull, which runs ahead of the disk's when slack.
+
+    The shell's pull coordinate ``x_s`` (m) and the disk's ``x_d`` differ by the cables'
+    slack ``g = x_s - x_d >= 0``; the tension ``T = F_shell(V, x_s) >= 0`` (N, the shell being
+    massless in its pull, its force is the cables'). Either the cables are taut (``g = 0``) or
+    slack (``T = 0``: the shell sits where its own force vanishes, ahead of a disk that returns
+    faster than it recoils). The complementarity ``g T = 0`` is smoothed (Chen-Harker-Kanzow-
+    Smale) to ``(g / l)(T / F_r) = mu``: with l = 1 mm, F_r = 1 N and ``mu`` = 1e-6 it bends
+    over a slack of 1 um and a tension of 1 mN. A taut cable at T newtons then has a slack of
+    1e-9 / T m: the shell's pull differs from the disk's by 1e-10 m at 10 N, so a beat whose
+    cables never slacken equals the one without this effect to round-off and the solver's
+    tolerance. The tension is positive by construction.
+
+    Energy: the cables work ``T dx_d/dt`` on the shell, which stores ``U(V, x_s)``; the
+    difference ``T dg/dt`` is the derivative of the smoothed contact's own energy,
+    ``mu l F_r log(g / l)`` (:meth:`energy`), so the account closes exactly. ``x_s`` is
+    algebraic, solved in each evaluation of the vector field by Newton's method
+    (:func:`cardiosoft.roots.implicit_scalar_root`, differentiable).
+
+    - ``smoothing``: mu (dimensionless, > 0), default 1e-6.
+    """
+
+    smoothing: jax.Array = eqx.field(converter=jnp.asarray, default=1e-6)
+    gap_scale = 1e-3  # l (m)
+    force_scale = 1.0  # F_r (N)
+
+    def _residual(self, xi, tension):
+        """The smoothed complementarity of ``xi = g / l`` and ``tension / F_r``, zero at the
+        solution; increasing in ``xi`` while taut, and while slack where the shell's force
+        rises with its pull (a stable equilibrium of the free shell)."""
+        t = tension / self.force_scale
+        return xi + t - jnp.sqrt((xi - t) ** 2 + 4.0 * self.smoothing)
+
+    def shell_pull(self, shell_force, disk_pull, stroke) -> tuple[jax.Array, jax.Array]:
+        """``(x_s, T)``: the shell's pull (m) and the cables' tension (N) at the disk's pull
+        ``disk_pull`` (m). ``shell_force(x)`` is the shell's force dU/dx (N) at pull x and the
+        current volume; ``stroke`` (m) the disk's full pull, which the shell never passes.
+
+        Newton's method on ``xi = g / l`` from ``sqrt(mu)``, the knee: taut, the residual is
+        nearly linear there and the first step lands on the root; slack, the first step is
+        the linearised free shell's. Each iterate is kept above a tenth of the last (the root
+        is positive) and within 1 mm past the stroke.
+        """
+        ell = self.gap_scale
+        top = (jnp.maximum(stroke - disk_pull, 0.0) + 1e-3) / ell
+
+        def residual(xi):
+            tension = shell_force(disk_pull + ell * xi)
+            return self._residual(xi, tension), tension
+
+        def safeguard(xi, step):
+            return jnp.clip(step, 0.1 * xi, top)
+
+        start = jnp.sqrt(self.smoothing) * jnp.ones_like(disk_pull)
+        xi, tension = implicit_scalar_root(
+            residual, start, SLACK_NEWTON_STEPS, safeguard=safeguard, has_aux=True
+        )
+        return disk_pull + ell * xi, tension
+
+    def energy(self, shell_pull, disk_pull) -> jax.Array:
+        """The smoothed contact's energy ``mu l F_r log(g / l)`` (J), up to a constant: its
+        rate is ``T dg/dt``, the cables' work that the shell does not store."""
+        gap = (shell_pull - disk_pull) / self.gap_scale
+        return self.smoothing * self.gap_scale * self.force_scale * jnp.log(gap)
 
 
 class ShellViscoelasticity(eqx.Module):
@@ -117,6 +190,7 @@ class PumpCircuit(eqx.Module):
       valve).
     - ``cable_friction``: a :class:`CableFriction` or None.
     - ``viscoelasticity``: a :class:`ShellViscoelasticity` or None.
+    - ``cable_slack``: a :class:`CableSlack` or None (the shell's pull is then the disk's).
     - ``energy`` (static): keep the energy account as states (:meth:`power`): the work done by
       the cables and by the atrium, delivered past the outlet, and lost to friction, the
       shell's viscosity and the valves, integrated by the solver with the rest (J). Off by
@@ -133,6 +207,7 @@ class PumpCircuit(eqx.Module):
     preload: AbstractPreload | None = None
     cable_friction: CableFriction | None = None
     viscoelasticity: ShellViscoelasticity | None = None
+    cable_slack: CableSlack | None = None
     energy: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
@@ -191,12 +266,38 @@ class PumpCircuit(eqx.Module):
         r = jnp.zeros_like(dp) if r is None else r
         return 2.0 * dp / (r + jnp.sqrt(r**2 + 4.0 * k * jnp.abs(dp)))
 
+    def _shell_force(self, y, pull):
+        """The shell's force dU/dx (N) at pull ``pull`` (m) and the volume of state ``y``."""
+
+        def volume_energy(pull):
+            """The chamber's energy, and the viscoelastic branch's, at this volume (J).
+
+            With W'(x) this gives the shell's force dU/dx, the chamber law evaluated once.
+            """
+            chamber = self.pump.chamber(pull, self.omega)
+            energy = chamber.energy(y["volume"])
+            if self.viscoelasticity is not None:
+                energy = energy + self.viscoelasticity.energy(chamber, y["volume"], y["relaxation"])
+            return energy
+
+        return self.pump.zero_pressure_force(pull, self.omega) + jax.grad(volume_energy)(pull)
+
+    def _shell_pull(self, t, y) -> dict:
+        """The disk's pull x_d(t) (m) and, with slack cables, the shell's own and the tension."""
+        x = self.actuation(t)
+        if self.cable_slack is None:
+            return {"pull": x}
+        shell_pull, tension = self.cable_slack.shell_pull(
+            lambda pull: self._shell_force(y, pull), x, self.actuation.stroke
+        )
+        return {"pull": x, "shell_pull": shell_pull, "shell_force": tension}
+
     def _hydraulics(self, t, y) -> dict:
         """Pull, chamber law, pressures and flows at time t (SI): all the vector field needs."""
-        x = self.actuation(t)
+        out = self._shell_pull(t, y)
         volume = y["volume"]
         ya = y["afterload"]
-        chamber = self.pump.chamber(x, self.omega)
+        chamber = self.pump.chamber(out.get("shell_pull", out["pull"]), self.omega)
         p_pump = chamber.pressure(volume)
         if self.viscoelasticity is not None:
             p_pump = p_pump + jax.grad(self.viscoelasticity.energy, argnums=1)(
@@ -204,8 +305,7 @@ class PumpCircuit(eqx.Module):
             )
         p_node = self.afterload.node_pressure(ya)
         q_out = y["flow"] if self.has_flow_state else self._algebraic_outflow(ya, p_pump - p_node)
-        out = {
-            "pull": x,
+        out |= {
             "chamber": chamber,
             "pump_pressure": p_pump,
             "node_pressure": p_node,
@@ -221,24 +321,13 @@ class PumpCircuit(eqx.Module):
         """Everything observable at time t (SI): pull, pressures, flows, forces."""
         out = self._hydraulics(t, y)
         del out["chamber"]
-        return out | self._forces(t, y, out["pull"])
+        return out | self._forces(t, y, out)
 
-    def _forces(self, t, y, x) -> dict:
+    def _forces(self, t, y, hydraulics: dict) -> dict:
         """The shell's force dU/dx and the cable force the load cell reads (N)."""
-        volume = y["volume"]
-
-        def volume_energy(pull):
-            """The chamber's energy, and the viscoelastic branch's, at this volume (J).
-
-            With W'(x) this gives the shell's force dU/dx, the chamber law evaluated once.
-            """
-            chamber = self.pump.chamber(pull, self.omega)
-            energy = chamber.energy(volume)
-            if self.viscoelasticity is not None:
-                energy = energy + self.viscoelasticity.energy(chamber, volume, y["relaxation"])
-            return energy
-
-        force = self.pump.zero_pressure_force(x, self.omega) + jax.grad(volume_energy)(x)
+        force = hydraulics.get("shell_force")
+        if force is None:
+            force = self._shell_force(y, hydraulics["pull"])
         out = {"shell_force": force}
         if self.cable_friction is not None:
             force = force * self.cable_friction.factor(self.actuation.velocity(t))
@@ -260,7 +349,7 @@ class PumpCircuit(eqx.Module):
         shell's strain energy (:meth:`stored_energy`): ``dU = F_shell dx + P_pump dV``.
         """
         s = self._hydraulics(t, y) if hydraulics is None else hydraulics
-        forces = self._forces(t, y, s["pull"])
+        forces = self._forces(t, y, s)
         speed = self.actuation.velocity(t)
         q_out, p_pump = s["outflow"], s["pump_pressure"]
         out = {"cable_in": forces["cable_force"] * speed}
@@ -286,12 +375,16 @@ class PumpCircuit(eqx.Module):
         return out
 
     def stored_energy(self, t, y) -> jax.Array:
-        """The shell's strain energy U(V, x) plus the dashpot spring's (J) at time t."""
-        x = self.actuation(t)
+        """The shell's strain energy U(V, x) plus the dashpot spring's (J) at time t, and
+        with slack cables the smoothed contact's (:meth:`CableSlack.energy`)."""
+        pulls = self._shell_pull(t, y)
+        x = pulls.get("shell_pull", pulls["pull"])
         energy = self.pump.energy(y["volume"], x, self.omega)
         if self.viscoelasticity is not None:
             chamber = self.pump.chamber(x, self.omega)
             energy = energy + self.viscoelasticity.energy(chamber, y["volume"], y["relaxation"])
+        if self.cable_slack is not None:
+            energy = energy + self.cable_slack.energy(x, pulls["pull"])
         return energy
 
     def __call__(self, t, y, args=None) -> dict:

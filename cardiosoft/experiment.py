@@ -20,7 +20,7 @@ from cardiosoft.loop_results import configure_loop, run_loop
 from cardiosoft.loop_scene import LoopScene
 from cardiosoft.pump import PumpSurrogate, check_pump_name, load
 from cardiosoft.results import RunResult, member_results
-from cardiosoft.scene import ACCURACY, RANGES, Scene, load_scene
+from cardiosoft.scene import ACCURACY, ADDABLE_EFFECTS, RANGES, Scene, load_scene
 from cardiosoft.units import mmHg
 
 __all__ = ["configure", "run", "run_designs"]
@@ -35,12 +35,14 @@ def configure(
     afterload=None,
     accuracy=None,
     pump: str | None = None,
+    effects=(),
 ) -> Scene:
     """The scene with the user's overrides (user units), validated; see :func:`run`."""
     if not isinstance(scene, Scene | LoopScene):
         scene = load_scene(scene, pump=pump)
     elif pump is not None and pump != scene.pump:
         scene = scene.replace(pump=check_pump_name(pump))
+    scene = _add_effects(scene, effects)
     if isinstance(scene, LoopScene):
         return configure_loop(
             scene,
@@ -75,6 +77,23 @@ def configure(
     return scene.replace(**changes) if changes else scene
 
 
+def _add_effects(scene, effects):
+    """``scene`` with ``effects`` switched on besides its own (:data:`ADDABLE_EFFECTS`)."""
+    effects = tuple(effects)
+    if not effects:
+        return scene
+    loop = isinstance(scene, LoopScene)
+    allowed = () if loop or scene.static else ADDABLE_EFFECTS
+    for effect in effects:
+        if effect not in allowed:
+            none = "none (a closed loop)" if loop else "none (a static scene)"
+            raise ValueError(
+                f"effect = {effect!r}: scene {scene.name} can add {', '.join(allowed) or none}; "
+                "the other effects need their parameters: list them in a scene file"
+            )
+    return scene.replace(effects=tuple(dict.fromkeys(scene.effects + effects)))
+
+
 def run(
     scene="bench-dynamic",
     *,
@@ -88,6 +107,7 @@ def run(
     energy=False,
     max_steps=None,
     pump: PumpSurrogate | None = None,
+    effects=(),
 ) -> RunResult:
     """Simulate a scene; the Python twin of ``python -m cardiosoft.simulate``.
 
@@ -108,6 +128,8 @@ def run(
     - ``max_steps``: the most solver steps per beat, [100, 10^7] (default: the preset's, 16384
       or 65536 for "reference"); a stiff case that runs out of steps says so.
     - ``pump``: a :class:`~cardiosoft.pump.PumpSurrogate` (default: the shipped one).
+    - ``effects``: effects to switch on besides the scene's own, of those that need no
+      parameters (:data:`~cardiosoft.scene.ADDABLE_EFFECTS`), e.g. ``("cable_slack",)``.
 
     **Returns:** a :class:`~cardiosoft.results.RunResult`, one member per afterload. Each member
     says whether it can be trusted: ``ok`` (solved, at its periodic steady state) and ``flags``
@@ -115,7 +137,13 @@ def run(
     Bad input raises ``ValueError`` naming the parameter.
     """
     scene = configure(
-        scene, omega=omega, shortening=shortening, bpm=bpm, afterload=afterload, accuracy=accuracy
+        scene,
+        omega=omega,
+        shortening=shortening,
+        bpm=bpm,
+        afterload=afterload,
+        accuracy=accuracy,
+        effects=effects,
     )
     config = None
     if max_steps is not None:

@@ -114,8 +114,9 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
     - the energy account's ratios where they are not meaningful (:func:`_energy_flags`): set
       to NaN;
     - a negative cable force: the prescribed pull would need the cables to push. A real cable
-      goes slack instead and the shell then moves by itself, which this displacement-controlled
-      model does not simulate; the result is reported, flagged, not corrected;
+      goes slack instead and the shell then moves by itself: a scene without the effect
+      ``cable_slack`` (:class:`~cardiosoft.circuit.CableSlack`) does not simulate that, and the
+      result is reported, flagged, not corrected;
     - a pump volume below zero (a beat whose column swings the chamber empty and on): the
       surrogate has no floor where the shell's walls meet, so the beat's volumes are not
       physical, and the ejection fraction, which would exceed 1, is set to NaN.
@@ -137,7 +138,7 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
     if metrics.get("min_cable_force", 0.0) < 0.0:
         out.append(
             f"cable force down to {metrics['min_cable_force']:.1f} N: the pull needs a cable that "
-            "pushes (a real cable goes slack; not modelled)"
+            "pushes (a real cable goes slack: add the effect cable_slack, --add-effect cable_slack)"
         )
     if metrics.get("esv", 0.0) < 0.0:
         ef = metrics.get("ejection_fraction", math.nan)

@@ -15,7 +15,9 @@ compiled vector field (not multiplied by zero):
 - Windkessel: ``valves`` (inlet and outlet), ``preload`` (atrial pressure source);
 - any: ``cable_friction`` (capstan friction at the base holes, changes the measured force),
   ``shell_viscoelasticity`` (the chamber stiffer to fast strokes than to slow ones, relaxing
-  back to the surrogate; :class:`~cardiosoft.circuit.ShellViscoelasticity`).
+  back to the surrogate; :class:`~cardiosoft.circuit.ShellViscoelasticity`), ``cable_slack``
+  (a cable only pulls: a disk that returns faster than the shell recoils leaves the cables
+  slack and the shell moving by itself; :class:`~cardiosoft.circuit.CableSlack`).
 
 **The pump.** A scene's top-level ``pump`` key names the surrogate it runs
 (:data:`cardiosoft.pump.SHIPPED_ARTIFACTS` or an artifact's path; default
@@ -51,6 +53,7 @@ from cardiosoft.valves import VALVE_KINDS, VALVE_SMOOTHING, Valve
 
 __all__ = [
     "AFTERLOADS",
+    "ADDABLE_EFFECTS",
     "EFFECTS",
     "LOOP_SCENE_NAMES",
     "RANGES",
@@ -61,7 +64,7 @@ __all__ = [
     "load_scene",
 ]
 
-SHELL_EFFECTS = ("cable_friction", "shell_viscoelasticity")
+SHELL_EFFECTS = ("cable_friction", "shell_viscoelasticity", "cable_slack")
 """Effects of the pump itself, allowed with any afterload."""
 
 
@@ -129,6 +132,9 @@ class here and its numbers in :data:`_NUMBERS` (``when=`` its tag); nothing else
 the type."""
 EFFECTS = {tag: kind.effects + SHELL_EFFECTS for tag, kind in AFTERLOADS.items()}
 """The effects each afterload type allows."""
+ADDABLE_EFFECTS = ("cable_slack",)
+"""The effects that need no parameters of their own: a run may add them to any open-loop scene
+(``--add-effect``)."""
 SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")
 LOOP_SCENE_NAMES = ("heart", "soft-lv", "soft-rv", "tah")
 """The shipped closed-loop scenes (``kind = "closed_loop"``, :mod:`cardiosoft.loop_scene`)."""

@@ -84,6 +84,14 @@ def parser(prog: str | None = None):
         help="most solver steps per beat, [100, 1e7] (default: the preset's)",
     )
     p.add_argument(
+        "--add-effect",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="switch on an effect besides the scene's own: cable_slack (a cable only pulls: at "
+        "high rates the disk returns faster than the shell recoils); repeatable",
+    )
+    p.add_argument(
         "--energy",
         action="store_true",
         help="keep each beat's energy account: summary.json gets energy_efficiency (work "
@@ -244,6 +252,7 @@ _TRACE_COLUMNS = (
     ("outflow_ml_per_s", "outflow", "ml"),
     ("cable_force_N", "cable_force", 1.0),
     ("column_volume_ml", "column_volume", "ml"),
+    ("shell_pull_mm", "shell_pull", "mm"),
 )
 """traces.csv's columns: (header, trace, scale: 1 or the name of a cardiosoft.units unit)."""
 
@@ -320,6 +329,7 @@ def _configure(args, out_dir):
         afterload=args.afterload,
         accuracy=args.accuracy,
         pump=args.pump,
+        effects=args.add_effect,
     )
     if args.beats is not None:
         check_range("beats", args.beats, "beats", 1, 500)

@@ -61,6 +61,7 @@ BAD_INPUTS = {
     "afterload": ["--afterload", "nan"],
     "omega": ["--omega", "7"],
     "pump": ["--pump", "ss950-v9"],
+    "effect": ["--add-effect", "column_wobble"],
 }
 
 
