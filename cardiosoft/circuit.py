@@ -39,9 +39,9 @@ from cardiosoft.valves import Valve
 __all__ = ["CableFriction", "CableSlack", "PumpCircuit", "ShellViscoelasticity"]
 
 SLACK_NEWTON_STEPS = 6
-"""Newton steps of :meth:`CableSlack.shell_pull`. From its start a taut root needs one, and
-the slackest instant of the bench at 120 bpm (90 mmHg: 1.7 mm of slack) three to reach
-round-off (measured 2026-12-05: 9e-4, 6e-8, 4e-15 mm after one, two, three)."""
+"""Newton steps of :meth:`CableSlack.shell_pull`. From its start a taut root needs one; the
+slackest instant of the bench at 120 bpm (60 mmHg, 6-8 mm of slack) four to reach round-off
+(measured 2026-12-05: 3e-2, 8e-5, 5e-10 mm after one, two, three)."""
 
 
 class CableFriction(eqx.Module):
