@@ -86,7 +86,13 @@ from cardiosoft.beat_solution import (
 )
 from cardiosoft.beat_solution import shard as _shard
 from cardiosoft.beat_solution import solution as _solution
-from cardiosoft.circuit import CableFriction, CableSlack, PumpCircuit, ShellViscoelasticity
+from cardiosoft.circuit import (
+    CableFriction,
+    CableSlack,
+    PumpCircuit,
+    ShellViscoelasticity,
+    WallContact,
+)
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
 from cardiosoft.loop_batch import solve_loop
 from cardiosoft.loop_scene import LoopScene
@@ -183,6 +189,7 @@ def scene_circuit(
         cable_friction=friction,
         viscoelasticity=viscoelasticity,
         cable_slack=CableSlack() if scene.has("cable_slack") else None,
+        wall_contact=WallContact() if scene.has("wall_contact") else None,
         energy=energy,
     )
 

@@ -34,9 +34,10 @@ from cardiosoft.actuation import CablePull
 from cardiosoft.circulation import AbstractAfterload, AbstractPreload
 from cardiosoft.pump import Chamber, PumpSurrogate
 from cardiosoft.roots import implicit_scalar_root
+from cardiosoft.units import ml, mmHg
 from cardiosoft.valves import Valve
 
-__all__ = ["CableFriction", "CableSlack", "PumpCircuit", "ShellViscoelasticity"]
+__all__ = ["CableFriction", "CableSlack", "PumpCircuit", "ShellViscoelasticity", "WallContact"]
 
 SLACK_NEWTON_STEPS = 6
 """Newton steps of :meth:`CableSlack.shell_pull`. From its start a taut root needs one; the
@@ -129,6 +130,45 @@ class CableSlack(eqx.Module):
         return self.smoothing * self.gap_scale * self.force_scale * jnp.log(gap)
 
 
+class WallContact(eqx.Module):
+    """The shell's walls meet: a floor under the cavity volume.
+
+    The surrogate's chamber law holds the volume only through its fitted pressures (-20 to
+    150 mmHg); sucked harder, as a fast beat's column can do, it lets the volume fall through
+    zero. Below ``onset`` the walls press together: ``U_w = E_w e^2 / 2`` with ``e`` the
+    one-sided depth ``w phi((onset - V) / w)`` (``phi(z) = z^3 - z^4 / 2`` on [0, 1], ``z -
+    1/2`` above; C2, w = ``onset``), so the floor is exactly absent, with its pressure and
+    stiffness, at and above ``onset``: a beat that never comes near it is unchanged to the
+    last bit. It adds ``dU_w/dV`` (< 0, it pushes the walls apart) to the chamber pressure and
+    ``U_w`` to the stored energy; not the cable force (it does not depend on the pull).
+
+    - ``onset``: where the walls begin to touch (m^3), default 2 ml: a film of about 0.2 mm
+      over the cavity's ~110 cm^2 of wall (a half-ellipsoid of semi-axes 60 and 30 mm),
+      which the folds of a 1.5-mm wall cannot press out. The contact stiffens from zero
+      there to ``stiffness`` at V = 0 (where it pushes back with ``stiffness onset / 2``).
+    - ``stiffness``: E_w (Pa/m^3), default 1000 mmHg/ml, 500 times the unloaded chamber's
+      (ss950-v3's 2 mmHg/ml): stiff enough that the water hammer of the bench at 120 bpm
+      when the walls meet (700 mmHg of suction at 30 mmHg) leaves the volume above zero, soft
+      enough that an explicit solver steps through the contact (it rings with the inertance
+      of the bench's tube and column, 1.2e6 Pa s^2/m^3, at about 50 Hz).
+    """
+
+    onset: jax.Array = eqx.field(converter=jnp.asarray, default=2 * ml)
+    stiffness: jax.Array = eqx.field(converter=jnp.asarray, default=1000 * mmHg / ml)
+
+    def energy(self, volume) -> jax.Array:
+        """U_w (J) at cavity volume ``volume`` (m^3)."""
+        z = (self.onset - volume) / self.onset
+        onset = jnp.clip(z, 0.0, 1.0)
+        depth = self.onset * jnp.where(z >= 1.0, z - 0.5, onset**3 - 0.5 * onset**4)
+        return 0.5 * self.stiffness * depth**2
+
+    def pressure(self, volume) -> jax.Array:
+        """dU_w/dV (Pa), <= 0."""
+        volume = jnp.asarray(volume, dtype=float)
+        return jax.jvp(self.energy, (volume,), (jnp.ones_like(volume),))[1]
+
+
 class ShellViscoelasticity(eqx.Module):
     """Relaxation of the silicone shell: a standard linear solid on the chamber's volume.
 
@@ -191,6 +231,7 @@ class PumpCircuit(eqx.Module):
     - ``cable_friction``: a :class:`CableFriction` or None.
     - ``viscoelasticity``: a :class:`ShellViscoelasticity` or None.
     - ``cable_slack``: a :class:`CableSlack` or None (the shell's pull is then the disk's).
+    - ``wall_contact``: a :class:`WallContact` or None (no floor under the volume).
     - ``energy`` (static): keep the energy account as states (:meth:`power`): the work done by
       the cables and by the atrium, delivered past the outlet, and lost to friction, the
       shell's viscosity and the valves, integrated by the solver with the rest (J). Off by
@@ -208,6 +249,7 @@ class PumpCircuit(eqx.Module):
     cable_friction: CableFriction | None = None
     viscoelasticity: ShellViscoelasticity | None = None
     cable_slack: CableSlack | None = None
+    wall_contact: WallContact | None = None
     energy: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
@@ -299,6 +341,8 @@ class PumpCircuit(eqx.Module):
         ya = y["afterload"]
         chamber = self.pump.chamber(out.get("shell_pull", out["pull"]), self.omega)
         p_pump = chamber.pressure(volume)
+        if self.wall_contact is not None:
+            p_pump = p_pump + self.wall_contact.pressure(volume)
         if self.viscoelasticity is not None:
             p_pump = p_pump + jax.grad(self.viscoelasticity.energy, argnums=1)(
                 chamber, volume, y["relaxation"]
@@ -375,8 +419,9 @@ class PumpCircuit(eqx.Module):
         return out
 
     def stored_energy(self, t, y) -> jax.Array:
-        """The shell's strain energy U(V, x) plus the dashpot spring's (J) at time t, and
-        with slack cables the smoothed contact's (:meth:`CableSlack.energy`)."""
+        """The shell's strain energy U(V, x) plus the dashpot spring's (J) at time t, with
+        slack cables the smoothed contact's (:meth:`CableSlack.energy`), with the floor the
+        walls' (:meth:`WallContact.energy`)."""
         pulls = self._shell_pull(t, y)
         x = pulls.get("shell_pull", pulls["pull"])
         energy = self.pump.energy(y["volume"], x, self.omega)
@@ -385,6 +430,8 @@ class PumpCircuit(eqx.Module):
             energy = energy + self.viscoelasticity.energy(chamber, y["volume"], y["relaxation"])
         if self.cable_slack is not None:
             energy = energy + self.cable_slack.energy(x, pulls["pull"])
+        if self.wall_contact is not None:
+            energy = energy + self.wall_contact.energy(y["volume"])
         return energy
 
     def __call__(self, t, y, args=None) -> dict:

@@ -118,7 +118,8 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
       ``cable_slack`` (:class:`~cardiosoft.circuit.CableSlack`) does not simulate that, and the
       result is reported, flagged, not corrected;
     - a pump volume below zero (a beat whose column swings the chamber empty and on): the
-      surrogate has no floor where the shell's walls meet, so the beat's volumes are not
+      surrogate has no floor where the shell's walls meet (the effect ``wall_contact``,
+      :class:`~cardiosoft.circuit.WallContact`, adds one), so the beat's volumes are not
       physical, and the ejection fraction, which would exceed 1, is set to NaN.
     """
     out = []
@@ -144,9 +145,9 @@ def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:
         ef = metrics.get("ejection_fraction", math.nan)
         metrics["ejection_fraction"] = math.nan
         out.append(
-            f"pump volume down to {metrics['esv'] / ml:.1f} ml, below zero: the surrogate has no "
-            f"floor where the shell's walls meet, so the beat's volumes are not physical; EF "
-            f"(SV / EDV = {ef:.3g}) reported as none"
+            f"pump volume down to {metrics['esv'] / ml:.1f} ml, below zero: the beat's volumes "
+            f"are not physical (a chamber without the effect wall_contact has no floor where "
+            f"the shell's walls meet); EF (SV / EDV = {ef:.3g}) reported as none"
         )
     _energy_flags(metrics, out)
     for key in ("efficiency", "static_efficiency"):

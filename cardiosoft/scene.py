@@ -17,7 +17,9 @@ compiled vector field (not multiplied by zero):
   ``shell_viscoelasticity`` (the chamber stiffer to fast strokes than to slow ones, relaxing
   back to the surrogate; :class:`~cardiosoft.circuit.ShellViscoelasticity`), ``cable_slack``
   (a cable only pulls: a disk that returns faster than the shell recoils leaves the cables
-  slack and the shell moving by itself; :class:`~cardiosoft.circuit.CableSlack`).
+  slack and the shell moving by itself; :class:`~cardiosoft.circuit.CableSlack`),
+  ``wall_contact`` (a floor where the walls meet: the volume stays above zero under suction;
+  :class:`~cardiosoft.circuit.WallContact`).
 
 **The pump.** A scene's top-level ``pump`` key names the surrogate it runs
 (:data:`cardiosoft.pump.SHIPPED_ARTIFACTS` or an artifact's path; default
@@ -52,8 +54,8 @@ from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
 from cardiosoft.valves import VALVE_KINDS, VALVE_SMOOTHING, Valve
 
 __all__ = [
-    "AFTERLOADS",
     "ADDABLE_EFFECTS",
+    "AFTERLOADS",
     "EFFECTS",
     "LOOP_SCENE_NAMES",
     "RANGES",
@@ -64,7 +66,7 @@ __all__ = [
     "load_scene",
 ]
 
-SHELL_EFFECTS = ("cable_friction", "shell_viscoelasticity", "cable_slack")
+SHELL_EFFECTS = ("cable_friction", "shell_viscoelasticity", "cable_slack", "wall_contact")
 """Effects of the pump itself, allowed with any afterload."""
 
 
@@ -132,7 +134,7 @@ class here and its numbers in :data:`_NUMBERS` (``when=`` its tag); nothing else
 the type."""
 EFFECTS = {tag: kind.effects + SHELL_EFFECTS for tag, kind in AFTERLOADS.items()}
 """The effects each afterload type allows."""
-ADDABLE_EFFECTS = ("cable_slack",)
+ADDABLE_EFFECTS = ("cable_slack", "wall_contact")
 """The effects that need no parameters of their own: a run may add them to any open-loop scene
 (``--add-effect``)."""
 SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")

@@ -89,7 +89,8 @@ def parser(prog: str | None = None):
         default=[],
         metavar="NAME",
         help="switch on an effect besides the scene's own: cable_slack (a cable only pulls: at "
-        "high rates the disk returns faster than the shell recoils); repeatable",
+        "high rates the disk returns faster than the shell recoils), wall_contact (a floor "
+        "where the shell's walls meet, the volume kept above zero); repeatable",
     )
     p.add_argument(
         "--energy",
