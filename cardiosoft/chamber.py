@@ -14,7 +14,7 @@ import jax.numpy as jnp
 
 from cardiosoft.roots import implicit_scalar_root
 
-__all__ = ["SWELLING_WIDTH", "VOLUME_NEWTON_STEPS", "Chamber"]
+__all__ = ["SWELLING_WIDTH", "VOLUME_NEWTON_STEPS", "Chamber", "one_sided_ramp"]
 
 SWELLING_WIDTH = 3e-6
 """Width (m^3, 3 ml) of the smooth onset of swelling, u(V); not fitted."""
@@ -32,6 +32,13 @@ def _elementwise_derivative(fn, V):
 
 def _softplus(z):
     return jax.nn.softplus(z)
+
+
+def one_sided_ramp(z) -> jax.Array:
+    """``phi(z)``: 0 for z <= 0, ``z^3 - z^4 / 2`` on [0, 1], ``z - 1/2`` above (C2): a ramp
+    that is exactly zero, with its slope and curvature, on one side of its onset."""
+    onset = jnp.clip(z, 0.0, 1.0)
+    return jnp.where(z >= 1.0, z - 0.5, onset**3 - 0.5 * onset**4)
 
 
 class Chamber(eqx.Module):
@@ -74,9 +81,7 @@ class Chamber(eqx.Module):
         ``z - 1/2`` above (C2; w = SWELLING_WIDTH): exactly zero, with its slope, at and below
         V_u, so the softening leaves the shell at rest unloaded (``P(V_u, 0) = 0``)."""
         w = SWELLING_WIDTH
-        z = (V - self.unloaded_volume) / w
-        onset = jnp.clip(z, 0.0, 1.0)
-        return w * jnp.where(z >= 1.0, z - 0.5, onset**3 - 0.5 * onset**4)
+        return w * one_sided_ramp((V - self.unloaded_volume) / w)
 
     def equilibrium_volume(self, V) -> jax.Array:
         """V_eq(V) (m^3): the zero-pressure volume of the folds as deep as the chamber at

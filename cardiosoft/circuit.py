@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from cardiosoft.actuation import CablePull
+from cardiosoft.chamber import one_sided_ramp
 from cardiosoft.circulation import AbstractAfterload, AbstractPreload
 from cardiosoft.pump import Chamber, PumpSurrogate
 from cardiosoft.roots import implicit_scalar_root
@@ -136,10 +137,10 @@ class WallContact(eqx.Module):
     The surrogate's chamber law holds the volume only through its fitted pressures (-20 to
     150 mmHg); sucked harder, as a fast beat's column can do, it lets the volume fall through
     zero. Below ``onset`` the walls press together: ``U_w = E_w e^2 / 2`` with ``e`` the
-    one-sided depth ``w phi((onset - V) / w)`` (``phi(z) = z^3 - z^4 / 2`` on [0, 1], ``z -
-    1/2`` above; C2, w = ``onset``), so the floor is exactly absent, with its pressure and
-    stiffness, at and above ``onset``: a beat that never comes near it is unchanged to the
-    last bit. It adds ``dU_w/dV`` (< 0, it pushes the walls apart) to the chamber pressure and
+    one-sided depth ``w phi((onset - V) / w)`` (``phi``: :func:`cardiosoft.chamber.one_sided_ramp`,
+    C2; w = ``onset``), so the floor is exactly absent, with its pressure and stiffness, at and
+    above ``onset``: a beat that never comes near it is unchanged to the last bit. It adds
+    ``dU_w/dV`` (< 0, it pushes the walls apart) to the chamber pressure and
     ``U_w`` to the stored energy; not the cable force (it does not depend on the pull).
 
     - ``onset``: where the walls begin to touch (m^3), default 2 ml: a film of about 0.2 mm
@@ -158,9 +159,7 @@ class WallContact(eqx.Module):
 
     def energy(self, volume) -> jax.Array:
         """U_w (J) at cavity volume ``volume`` (m^3)."""
-        z = (self.onset - volume) / self.onset
-        onset = jnp.clip(z, 0.0, 1.0)
-        depth = self.onset * jnp.where(z >= 1.0, z - 0.5, onset**3 - 0.5 * onset**4)
+        depth = self.onset * one_sided_ramp((self.onset - volume) / self.onset)
         return 0.5 * self.stiffness * depth**2
 
     def pressure(self, volume) -> jax.Array:
