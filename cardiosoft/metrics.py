@@ -28,9 +28,15 @@ class BeatMetrics(eqx.Module):
     esv: jax.Array
     """End-systolic (smallest) pump volume (m^3)."""
     stroke_volume: jax.Array
-    """EDV - ESV (m^3): for the bench the peak column rise, the paper's dynamic SV."""
+    """EDV - ESV (m^3): for the bench the column's peak rise, the paper's dynamic SV."""
+    ejected_volume: jax.Array
+    """The pump's own ejection (m^3): its volume when the pull begins less its smallest. Below
+    ``stroke_volume`` where the line's fluid still flows in after the pull has begun (the
+    column sloshing): the column's rise then counts that inflow too
+    (:func:`cardiosoft.results.flags`)."""
     ejection_fraction: jax.Array
-    """SV / EDV."""
+    """SV / EDV, from the pump's own volumes: at most 1 whenever ESV >= 0
+    (:func:`cardiosoft.results.flags` reports it as none where ESV < 0)."""
     cardiac_output: jax.Array
     """SV / period (m^3/s)."""
     peak_force: jax.Array
@@ -102,6 +108,7 @@ def beat_metrics(
         edv=edv,
         esv=esv,
         stroke_volume=sv,
+        ejected_volume=volume[0] - esv,  # sample 0 is the pull's start
         ejection_fraction=sv / edv,
         cardiac_output=sv / period,
         # the largest sample picked by index, not jnp.max: measured, the tangent of jnp.max

@@ -35,6 +35,7 @@ def good_metrics(**changes) -> dict[str, float]:
         edv=110 * ml,
         esv=40 * ml,
         stroke_volume=70 * ml,
+        ejected_volume=70 * ml,
         ejection_fraction=70 / 110,
         cardiac_output=70 * ml,
         peak_force=80.0,
