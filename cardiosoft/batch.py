@@ -145,6 +145,7 @@ SCENE_NUMBERS = (
     "cable_friction",
     "viscoelastic_ratio",
     "relaxation_time",
+    "ramp_time",
 )
 
 

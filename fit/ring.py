@@ -72,10 +72,12 @@ FALL_AFTER_PEAK = 0.05  # a curve "falls after its peak" when it ends 5 % below 
 
 
 def _bench(pump_name, **changes):
+    """The pump's calibrated 30-bpm bench with the ideal crosshead (no ramp: ss950-v4's bench
+    holds a 50-ms one, its prior's median), changed by ``changes``."""
     from cardiosoft.scene import load_scene
 
     scene = load_scene("bench-dynamic", pump=pump_name)
-    return scene.replace(bpm=30.0, **changes) if changes else scene.replace(bpm=30.0)
+    return scene.replace(**({"bpm": 30.0, "ramp_time": 0.0} | changes))
 
 
 class Ring(NamedTuple):

@@ -342,6 +342,39 @@ def test_posterior_density_has_the_draws_support():
     assert np.all(np.isfinite(r[~outside]))
 
 
+@pytest.mark.parametrize("pump", ["ss950-v3", "ss950-v4"])
+def test_each_pump_s_posterior_stands_on_its_own_calibrated_bench(pump):
+    """A surrogate's posterior is centred on the bench calibrated with it (the scene's
+    ``[calibration."<pump>"]`` table): ss950-v4's on its 101.7-mm tube and a crosshead with a
+    50-ms ramp, which enters its bench block as a fifth rig unknown with its prior
+    (``bench.log_ramp_time``, 5-500 ms at 2 sd) and sets the scene's ramp from theta;
+    ss950-v3's ideal crosshead (no ramp) has four."""
+    import jax.numpy as jnp
+
+    from cardiosoft.pump import load
+    from cardiosoft.scene import load_scene
+    from fit import fitting
+    from fit.posterior import artifact, blocks
+
+    scene = artifact.bench_scene(pump)
+    assert scene == load_scene("bench-dynamic", pump=pump)
+    layout = blocks.Layout(load(pump), fitting.rig_from_card(load_card(pump)), scene)
+    bench = layout.blocks["bench"]
+    ramp = pump == "ss950-v4"
+    assert ("bench.log_ramp_time" in layout.names) == ramp
+    assert bench.stop - bench.start == 4 + ramp
+    idx, mu, sd = layout.prior_rows("bench")
+    assert list(idx) == list(range(bench.start, bench.stop))
+    if ramp:
+        assert (scene.tube_length, scene.ramp_time) == pytest.approx((0.1017, 0.05))
+        assert np.exp(mu[-1] + np.array([-2, 2]) * sd[-1]) == pytest.approx([0.005, 0.5])
+        theta = np.array(layout.centre)
+        theta[bench.stop - 1] = np.log(0.2)
+        at = blocks.bench_scene_at(scene, layout, jnp.asarray(theta))
+        assert float(at.ramp_time) == pytest.approx(0.2)
+        assert float(at.tube_length) == pytest.approx(scene.tube_length)
+
+
 @pytest.mark.slow
 def test_leaving_an_afterload_out_drops_its_four_rows():
     """The leave-one-afterload-out posterior's residuals (``joint_residuals(keep=...)``) are

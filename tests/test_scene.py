@@ -119,9 +119,10 @@ def test_a_pumps_calibration_table_overlays_the_scenes_numbers():
     visco = table["shell_viscoelasticity"]
     assert other.viscoelastic_ratio == pytest.approx(visco["stiffness_ratio"])
     assert other.relaxation_time == pytest.approx(visco["relaxation_time_s"])
+    assert (own.ramp_time, other.ramp_time) == (0.0, table["actuation"]["ramp_time_s"])
     calibrated = {
         "pump", "column_diameter", "tube_length", "tube_diameter", "cable_friction",
-        "viscoelastic_ratio", "relaxation_time",
+        "viscoelastic_ratio", "relaxation_time", "ramp_time",
     }
     for field in dataclasses.fields(Scene):
         if field.name not in calibrated:
@@ -562,12 +563,15 @@ def test_ramp_time_is_read_and_checked(tmp_path):
     the shortest phase (here the 1-s pull of the 30-bpm bench)."""
     text = (resources.files("cardiosoft") / "scenes" / "bench-dynamic.toml").read_text()
     path = tmp_path / "ramped.toml"
-    path.write_text(text.replace("shape = \"linear\"", "shape = \"linear\"\nramp_time_s = 0.05"))
+    ideal = "ramp_time_s = 0.0 "
+    assert text.count(ideal) == 1
+    path.write_text(text.replace(ideal, "ramp_time_s = 0.05 "))
     assert load_scene(path).ramp_time == 0.05
     assert load_scene("bench-dynamic").ramp_time == 0.0
-    path.write_text(text.replace("shape = \"linear\"", "shape = \"cosine\"\nramp_time_s = 0.05"))
+    path.write_text(text.replace(ideal, "ramp_time_s = 0.05 ").replace(
+        "shape = \"linear\"", "shape = \"cosine\""))
     with pytest.raises(ValueError, match=r"ramp_time_s' = 0.05 s: allowed only with shape"):
         load_scene(path)
-    path.write_text(text.replace("shape = \"linear\"", "shape = \"linear\"\nramp_time_s = 0.6"))
+    path.write_text(text.replace(ideal, "ramp_time_s = 0.6 "))
     with pytest.raises(ValueError, match=r"ramp_time_s' = 0.6 s: allowed at most half"):
         load_scene(path)

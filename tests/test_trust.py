@@ -25,7 +25,8 @@ def beat(**changes) -> dict[str, float]:
     defect today's surrogate shows at some rate (the 180-bpm cable that pushed)."""
     ml = 1e-6
     metrics = {
-        "stroke_volume": 60 * ml, "ejected_volume": 60 * ml, "edv": 100 * ml, "esv": 40 * ml, "ejection_fraction": 0.6,
+        "stroke_volume": 60 * ml, "ejected_volume": 60 * ml, "edv": 100 * ml, "esv": 40 * ml,
+        "ejection_fraction": 0.6,
         "cardiac_output": 30 * ml, "peak_force": 80.0, "mech_work": 2.0,
         "reference_pressure": 60 * mmHg, "hydraulic_work_paper": 60 * mmHg * 60 * ml,
         "hydraulic_work_pull": 0.5, "stroke_work": 0.5, "efficiency": 60 * mmHg * 60 * ml / 2.0,

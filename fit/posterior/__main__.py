@@ -168,12 +168,12 @@ def _print_bench(check, bench, sv_title: str, force_title: str) -> None:
 
 
 def _smc(args) -> int:
-    from cardiosoft.scene import load_scene
     from fit.posterior import artifact, laplace, smc
 
     b = artifact.Shipped(args.artifact)
     layout, cols = b.layout, b.spans[laplace.JOINT]
-    potential, inside = artifact.joint_target(layout, b.d, b.s0, load_scene(artifact.SCENE))
+    scene = artifact.bench_scene(args.artifact)
+    potential, inside = artifact.joint_target(layout, b.d, b.s0, scene)
     print(f"tempered SMC of the {laplace.JOINT} block given the EF law at the fit "
           f"({cols.stop - cols.start} parameters, {args.runs} runs of {args.particles} "
           "particles):", flush=True)
@@ -209,13 +209,12 @@ def _bench_bands(b, result, inside) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from cardiosoft.scene import load_scene
     from cardiosoft.units import ml, mmHg
     from fit.posterior import artifact, blocks, laplace, smc
 
     cols = b.spans[laplace.JOINT]
-    outputs = blocks.bench_outputs(b.layout, load_scene(artifact.SCENE), b.d.t.afterload,
-                                   steady="shooting")
+    scene = artifact.bench_scene(b.posterior.card["surrogate"])
+    outputs = blocks.bench_outputs(b.layout, scene, b.d.t.afterload, steady="shooting")
 
     @jax.jit
     def one(theta):
@@ -257,14 +256,14 @@ def _smc_pilot(args) -> int:
     and the bench's bands at 30 and 60 bpm from draws built as the shipped ones are, beside
     theirs. Recorded in the card as ``smc_pilot``."""
     from cardiosoft.posterior import ensemble_run, predictive_bands
-    from cardiosoft.scene import load_scene
     from cardiosoft.units import mmHg
     from fit.posterior import artifact, laplace, smc
 
     b = artifact.Shipped(args.artifact)
     layout, cols = b.layout, b.spans[laplace.JOINT]
     shipped = json.loads(b.card_path.read_text())["smc"][laplace.JOINT]["parameters"]
-    potential, inside = artifact.joint_target(layout, b.d, b.s0, load_scene(artifact.SCENE))
+    scene = artifact.bench_scene(args.artifact)
+    potential, inside = artifact.joint_target(layout, b.d, b.s0, scene)
     seeds = (args.pilot_seed, args.pilot_seed + 1)
     print(f"tempered SMC of the {laplace.JOINT} block from an independent pilot (seeds "
           f"{seeds[0]}, {seeds[1]}; the shipped draws': 0, 1), {args.particles} particles:",
@@ -303,7 +302,7 @@ def _smc_pilot(args) -> int:
              "pilot": artifact.as_ensemble(layout, theta_new, b.posterior.card)}
     bands = {}
     for bpm in PILOT_RATES_BPM:
-        scene = load_scene("bench-dynamic").replace(bpm=bpm)
+        scene = artifact.bench_scene(args.artifact).replace(bpm=bpm)
         per = {who: predictive_bands(ensemble_run(scene, post), post.card)
                for who, post in draws.items()}
         for i, head in enumerate(scene.afterloads):
@@ -407,14 +406,14 @@ def _sbc(args) -> int:
 def _sbc_ef(args, replicates: int, progress):
     from cardiosoft import datasets
     from cardiosoft.pump import artifact_path, load, load_card, load_posterior
-    from cardiosoft.scene import load_scene
     from fit import fitting
     from fit.posterior import artifact, blocks, sbc
 
     post = load_posterior(args.artifact)
     npz, _ = artifact.posterior_paths(artifact_path(args.artifact))
     model, card = load(args.artifact), load_card(args.artifact)
-    layout = blocks.Layout(model, fitting.rig_from_card(card), load_scene(artifact.SCENE))
+    layout = blocks.Layout(model, fitting.rig_from_card(card),
+                           artifact.bench_scene(args.artifact))
     cols = layout.blocks["ef"]
     with np.load(npz, allow_pickle=False) as f:
         lap_ef = (f["natural_centre"][cols], f["transform"][cols, cols])
@@ -427,14 +426,13 @@ def _sbc_ef(args, replicates: int, progress):
 
 def _sobol(args) -> int:
     from cardiosoft.pump import artifact_path, load, load_card, load_posterior
-    from cardiosoft.scene import load_scene
     from fit import fitting
     from fit.posterior import artifact, blocks, sobol
 
     post = load_posterior(args.artifact)
     npz, js = artifact.posterior_paths(artifact_path(args.artifact))
     layout = blocks.Layout(load(args.artifact), fitting.rig_from_card(load_card(args.artifact)),
-                           load_scene(artifact.SCENE))
+                           artifact.bench_scene(args.artifact))
     with np.load(npz, allow_pickle=False) as f:
         theta = f["theta"]
     result = sobol.run(layout, theta, post, base_samples=args.base_samples, seed=args.seed,

@@ -44,6 +44,13 @@ mmHg) beyond their range (30-90 mmHg)."""
 SCENE = "bench-dynamic"
 
 
+def bench_scene(surrogate=None):
+    """The calibrated bench (:data:`SCENE`) of the surrogate ``surrogate`` (its card's name, or
+    the artifact's path; None: the shipped default), with that pump's rig numbers (the scene's
+    ``[calibration."<pump>"]`` tables)."""
+    return load_scene(SCENE, pump=load_card(surrogate)["name"])
+
+
 def posterior_paths(weights: Path) -> tuple[Path, Path]:
     """(draws .npz, card .json) beside the surrogate's weights."""
     stem = weights.with_suffix("").name + "-posterior"
@@ -58,7 +65,7 @@ def _scene_values(layout: blocks.Layout, theta: np.ndarray) -> dict[str, np.ndar
         "column_diameter": np.asarray(rigs.column_diameter),
         "cable_friction": np.asarray(rigs.cable_friction),
     }
-    for k, field in enumerate(blocks.BENCH_SCENE_FIELDS):
+    for k, field in enumerate(layout.bench_scene_fields):
         out[field] = tube[..., k]
     return out
 
@@ -107,7 +114,7 @@ def linearised_fit(path=None, progress=print) -> LinearisedFit:
     diffrax) and the discrepancy's leave-one-out sizing: what the Laplace and the checks need."""
     model, card = load(path), load_card(path)
     rig = fitting.rig_from_card(card)
-    scene = load_scene(SCENE)
+    scene = bench_scene(card["name"])
     data = datasets.load_paper_data()
     d = blocks.training_data(data)
     layout = blocks.Layout(model, rig, scene)
@@ -501,7 +508,7 @@ class Shipped:
             self.centre, self.natural_centre = f["centre"], f["natural_centre"]
             self.transform = f["transform"]
         model, card = load(path), load_card(path)
-        scene = load_scene(SCENE)
+        scene = bench_scene(card["name"])
         self.layout = layout = blocks.Layout(model, fitting.rig_from_card(card), scene)
         if not np.allclose(layout.centre, self.centre, rtol=0, atol=1e-12):
             raise ValueError(f"{self.npz}: centred elsewhere than the current fit and scene; "

@@ -84,8 +84,10 @@ BENCH_FIELDS = {
 }
 """The bench calibration's four, as logs of SI values (``fit.bench.NAMES`` in m, -, s), and the
 scene fields they set."""
-BENCH_NAMES = tuple(BENCH_FIELDS)
-BENCH_SCENE_FIELDS = tuple(BENCH_FIELDS.values())
+RAMP_FIELD = {"bench.log_ramp_time": "ramp_time"}
+"""The crosshead's ramp time (s), a rig unknown of the bench block wherever the calibrated bench
+has a crosshead that accelerates (its ``actuation.ramp_time_s`` > 0): sampled from its prior
+(:data:`PRIORS`) and the dynamic SVs and work, never fitted to the peak forces (issue #39)."""
 FEM_ROUNDING = 0.001 / np.sqrt(12.0)
 """Table I prints EF to 0.1 %: a uniform rounding error of sd 0.1 % / sqrt(12) (fraction)."""
 EFFICIENCY_ROUNDING = 0.0005
@@ -142,6 +144,14 @@ PRIORS: dict[str, tuple[float, float, str]] = {
     "bench.log_relaxation_time": (
         float(np.log(1.0)), float(np.log(5.0)), "its relaxation time: 0.2-5 s"
     ),
+    "bench.log_ramp_time": (
+        float(np.log(0.05)), float(np.log(10.0)) / 2.0,
+        "log t_r [s], the crosshead's jerk-limited start and stop: 5-500 ms at 2 sd. Neither "
+        "the paper (3000 mm/min, Sec. II-F) nor the INSTRON 5965's public data give an "
+        "acceleration. 5 ms is a servo velocity loop of ~100 Hz; 500 ms is half the 1-s pull, "
+        "past which it never runs at the stated speed. Peak accelerations pi v / (2 t_r): "
+        "0.16-16 m/s^2",
+    ),
 }
 """Normal priors (mean, sd, why) on the raw parameters of the mechanics and bench blocks."""
 
@@ -194,7 +204,8 @@ def _names(module, fields, prefix=""):
 
 class Layout:
     """The flat parameter vector: names, blocks, centre (the fit's optimum) and how to rebuild
-    the surrogate, the rig and the bench's four from it."""
+    the surrogate, the rig and the bench's four (five with the crosshead's ramp,
+    :data:`RAMP_FIELD`) from it."""
 
     def __init__(self, model, rig, bench_scene):
         ef, self._ef_static = pipeline._split(model, pipeline.EF_FIELDS)
@@ -215,19 +226,21 @@ class Layout:
         for i, o in zip(quadratic, QUADRATIC_OMEGAS, strict=True):
             ef_names[i] = f"ef_quadratic(Omega {o:g})"
         flat_ef = self._to_layout @ np.asarray(flat_ef)
-        bench = np.log(np.array([float(getattr(bench_scene, f)) for f in BENCH_SCENE_FIELDS]))
+        fields = BENCH_FIELDS | (RAMP_FIELD if float(bench_scene.ramp_time) > 0.0 else {})
+        self.bench_names, self.bench_scene_fields = tuple(fields), tuple(fields.values())
+        bench = np.log(np.array([float(getattr(bench_scene, f)) for f in fields.values()]))
         self.centre = np.concatenate([flat_ef, np.asarray(flat_mech), bench])
         n_ef, n_mech = flat_ef.size, flat_mech.size
         self.blocks = {
             "ef": slice(0, n_ef),
             "mechanics": slice(n_ef, n_ef + n_mech),
-            "bench": slice(n_ef + n_mech, n_ef + n_mech + 4),
+            "bench": slice(n_ef + n_mech, n_ef + n_mech + bench.size),
         }
         self.names = tuple(
             ef_names
             + _names(model, MECHANICS)
             + _names(rig, RIG)
-            + list(BENCH_NAMES)
+            + list(self.bench_names)
         )
 
     @property
@@ -448,7 +461,7 @@ def bench_scene_at(scene, layout: Layout, theta):
     tube = jnp.exp(theta[layout.blocks["bench"]])
     rig = layout.rig(theta)
     return scene.replace(
-        **dict(zip(BENCH_SCENE_FIELDS, tube, strict=True)),
+        **dict(zip(layout.bench_scene_fields, tube, strict=True)),
         column_diameter=rig.column_diameter,
         cable_friction=rig.cable_friction,
     )

@@ -127,7 +127,7 @@ def bench(posterior, data, *, seed: int = 0, heads=None) -> BenchCheck:
     b = data.fig10_bench
     heads = list(range(len(b["afterload_mmHg"]))) if heads is None else list(heads)
     pick = lambda a: np.asarray(a, float)[heads]  # noqa: E731
-    scene = load_scene("bench-dynamic").replace(
+    scene = load_scene("bench-dynamic", pump=posterior.card["surrogate"]).replace(
         bpm=30.0, afterloads=tuple(float(p) * mmHg for p in pick(b["afterload_mmHg"]))
     )
     ens = ensemble_run(scene, posterior)

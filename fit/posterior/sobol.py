@@ -97,7 +97,8 @@ def run(layout, theta_draws, posterior, *, base_samples: int = BASE_SAMPLES, see
     problem = {"num_vars": d, "names": names, "bounds": [[0.0, 1.0]] * d,
                "dists": ["norm"] * d}
     z = sample.sample(problem, base_samples, calc_second_order=False, seed=seed)
-    scene = load_scene("bench-dynamic").replace(bpm=BPM, afterloads=(HEAD_MMHG * mmHg,))
+    scene = load_scene("bench-dynamic", pump=posterior.card["surrogate"]).replace(
+        bpm=BPM, afterloads=(HEAD_MMHG * mmHg,))
     progress(f"sobol: {len(z)} samples at {BPM:g} bpm in one batched solve ...")
     start = time.perf_counter()
     ens = ensemble_run(scene, artifact.as_ensemble(layout, mean + z @ lower.T, posterior.card))
