@@ -172,8 +172,7 @@ def _smc(args) -> int:
 
     b = artifact.Shipped(args.artifact)
     layout, cols = b.layout, b.spans[laplace.JOINT]
-    scene = artifact.bench_scene(args.artifact)
-    potential, inside = artifact.joint_target(layout, b.d, b.s0, scene)
+    potential, inside = artifact.joint_target(layout, b.d, b.s0, b.scene)
     print(f"tempered SMC of the {laplace.JOINT} block given the EF law at the fit "
           f"({cols.stop - cols.start} parameters, {args.runs} runs of {args.particles} "
           "particles):", flush=True)
@@ -210,11 +209,10 @@ def _bench_bands(b, result, inside) -> dict:
     import jax.numpy as jnp
 
     from cardiosoft.units import ml, mmHg
-    from fit.posterior import artifact, blocks, laplace, smc
+    from fit.posterior import blocks, laplace, smc
 
     cols = b.spans[laplace.JOINT]
-    scene = artifact.bench_scene(b.posterior.card["surrogate"])
-    outputs = blocks.bench_outputs(b.layout, scene, b.d.t.afterload, steady="shooting")
+    outputs = blocks.bench_outputs(b.layout, b.scene, b.d.t.afterload, steady="shooting")
 
     @jax.jit
     def one(theta):
@@ -262,8 +260,7 @@ def _smc_pilot(args) -> int:
     b = artifact.Shipped(args.artifact)
     layout, cols = b.layout, b.spans[laplace.JOINT]
     shipped = json.loads(b.card_path.read_text())["smc"][laplace.JOINT]["parameters"]
-    scene = artifact.bench_scene(args.artifact)
-    potential, inside = artifact.joint_target(layout, b.d, b.s0, scene)
+    potential, inside = artifact.joint_target(layout, b.d, b.s0, b.scene)
     seeds = (args.pilot_seed, args.pilot_seed + 1)
     print(f"tempered SMC of the {laplace.JOINT} block from an independent pilot (seeds "
           f"{seeds[0]}, {seeds[1]}; the shipped draws': 0, 1), {args.particles} particles:",
@@ -302,7 +299,7 @@ def _smc_pilot(args) -> int:
              "pilot": artifact.as_ensemble(layout, theta_new, b.posterior.card)}
     bands = {}
     for bpm in PILOT_RATES_BPM:
-        scene = artifact.bench_scene(args.artifact).replace(bpm=bpm)
+        scene = b.scene.replace(bpm=bpm)
         per = {who: predictive_bands(ensemble_run(scene, post), post.card)
                for who, post in draws.items()}
         for i, head in enumerate(scene.afterloads):

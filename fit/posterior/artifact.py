@@ -508,7 +508,7 @@ class Shipped:
             self.centre, self.natural_centre = f["centre"], f["natural_centre"]
             self.transform = f["transform"]
         model, card = load(path), load_card(path)
-        scene = bench_scene(card["name"])
+        self.scene = scene = bench_scene(card["name"])
         self.layout = layout = blocks.Layout(model, fitting.rig_from_card(card), scene)
         if not np.allclose(layout.centre, self.centre, rtol=0, atol=1e-12):
             raise ValueError(f"{self.npz}: centred elsewhere than the current fit and scene; "

@@ -121,13 +121,13 @@ def bench(posterior, data, *, seed: int = 0, heads=None) -> BenchCheck:
     ``heads``: indices of the paper's afterloads to check (default all)."""
     from cardiosoft.batch import solve_beats
     from cardiosoft.posterior import discrepancy_sd, ensemble_run
-    from cardiosoft.scene import load_scene
     from cardiosoft.units import mmHg
+    from fit.posterior import artifact
 
     b = data.fig10_bench
     heads = list(range(len(b["afterload_mmHg"]))) if heads is None else list(heads)
     pick = lambda a: np.asarray(a, float)[heads]  # noqa: E731
-    scene = load_scene("bench-dynamic", pump=posterior.card["surrogate"]).replace(
+    scene = artifact.bench_scene(posterior.card["surrogate"]).replace(
         bpm=30.0, afterloads=tuple(float(p) * mmHg for p in pick(b["afterload_mmHg"]))
     )
     ens = ensemble_run(scene, posterior)

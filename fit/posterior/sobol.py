@@ -85,7 +85,6 @@ def run(layout, theta_draws, posterior, *, base_samples: int = BASE_SAMPLES, see
     from SALib.sample import sobol as sample
 
     from cardiosoft.posterior import ensemble_run
-    from cardiosoft.scene import load_scene
     from cardiosoft.units import mmHg
     from fit.posterior import artifact
 
@@ -97,7 +96,7 @@ def run(layout, theta_draws, posterior, *, base_samples: int = BASE_SAMPLES, see
     problem = {"num_vars": d, "names": names, "bounds": [[0.0, 1.0]] * d,
                "dists": ["norm"] * d}
     z = sample.sample(problem, base_samples, calc_second_order=False, seed=seed)
-    scene = load_scene("bench-dynamic", pump=posterior.card["surrogate"]).replace(
+    scene = artifact.bench_scene(posterior.card["surrogate"]).replace(
         bpm=BPM, afterloads=(HEAD_MMHG * mmHg,))
     progress(f"sobol: {len(z)} samples at {BPM:g} bpm in one batched solve ...")
     start = time.perf_counter()
