@@ -1,5 +1,5 @@
-"""The 30-bpm bench's ring, diagnosed on both shipped pumps, and the crosshead's motion as a
-candidate cause (issue #39, items 2 and 3a).
+"""The 30-bpm bench's ring, diagnosed on both shipped pumps, and its candidate causes tested
+(issue #39, items 2 and 3).
 
     python -m fit.ring                 # the tables (about 1-2 min on 2 cores)
     python -m fit.ring --out DIR       # and the figure, DIR/ring.png
@@ -42,6 +42,13 @@ each pump's 60-mmHg ring, from stated physics and never from the forces:
   silicone elastomers at 1-10 Hz (Smooth-On publishes none for Smooth-Sil 950), beside the
   calibrated viscoelastic branch's own loss factor at the ring's frequency and the damping it
   gives (which the simulated bench has and the linearised ring's zeta leaves out).
+
+The silicone's loss is also simulated in place of the calibrated branch: a standard linear
+solid whose loss factor peaks at 0.05 and at 0.15 at the 60-mmHg ring (:func:`silicone_branch`),
+alone and with the crosshead's ramp. The tube's wall is not simulated: the model has no node
+between the chamber and the line, and its largest share (a compliance beside the chamber's,
+2-10 %) would lower the ring's surge impedance ``sqrt(L / C)``, the force of a start at full
+speed, by at most 1-5 %.
 
 **The crosshead.** The model starts and stops the disk at full speed; a universal testing
 machine's crosshead accelerates over a finite time (``cardiosoft.actuation``: jerk-limited
@@ -132,6 +139,25 @@ def branch_loss_factor(scene, pump, traces, i, f) -> float:
     wt = 2.0 * np.pi * f * scene.relaxation_time
     storage = k + branch * wt**2 / (1.0 + wt**2)
     return branch * wt / (1.0 + wt**2) / storage
+
+
+def silicone_branch(scene, pump, traces, i, f, tan_delta) -> dict:
+    """The viscoelastic branch of a silicone with loss factor ``tan_delta`` at frequency ``f``
+    (Hz), in place of the calibrated one: the standard linear solid whose loss factor, beside
+    the chamber's stiffness k at sample ``i``, peaks at ``tan_delta`` at ``f``. With the
+    branch's spring ``b = r E(x)`` and ``w = 2 pi f tau``, ``tan(delta) = b w / (k (1 + w^2) +
+    b w^2)`` peaks at ``w = 1 / s``, ``s = sqrt(1 + b / k)``, at ``(s^2 - 1) / (2 s)``; so
+    ``s = t + sqrt(t^2 + 1)``. Returns the scene's ``viscoelastic_ratio`` and
+    ``relaxation_time`` (s)."""
+    import jax.numpy as jnp
+
+    volume, pull = jnp.asarray(traces["volume"][i]), jnp.asarray(traces["pull"][i])
+    k = float(pump.stiffness(volume, pull, scene.omega))
+    s = tan_delta + math.sqrt(tan_delta**2 + 1.0)
+    return {
+        "viscoelastic_ratio": (s**2 - 1.0) * k / float(pump.chamber_elastance(pull, scene.omega)),
+        "relaxation_time": 1.0 / (2.0 * math.pi * f * s),
+    }
 
 
 def candidates(scene, row) -> dict:
@@ -248,14 +274,22 @@ def diagnose(pump_name):
                 "dynamic_sv_ml": float(out.metrics.stroke_volume[m]) / 1e-6,
                 "taut_until": taut_until,
                 "loss_factor": branch_loss_factor(scene, pump, member, i, ring.frequency),
+                "silicone_branches": {
+                    t: silicone_branch(scene, pump, member, i, ring.frequency, t)
+                    for t in SILICONE_LOSS_FACTOR
+                },
             }
         )
     return rows, traces, static
 
 
-def crosshead(pump_name):
-    """Peak forces (N) and dynamic SVs (ml) per ramp time of :data:`RAMPS_S`, then with the
-    raised-cosine pull (the same stroke and period): ``{label: (forces, svs)}``."""
+def simulated(pump_name, ring_row):
+    """Peak forces (N) and dynamic SVs (ml) of the candidates simulated one at a time, then
+    together: the crosshead's ramp times of :data:`RAMPS_S` and the raised-cosine pull (the same
+    stroke and period), candidate (a); the silicone's loss factors of
+    :data:`SILICONE_LOSS_FACTOR` at ``ring_row``'s ring in place of the calibrated branch
+    (:func:`silicone_branch`), candidate (d); each of those with the ramp's prior median
+    (50 ms, ``bench-dynamic.toml``). ``{label: (forces, svs)}``."""
     from cardiosoft.batch import solve_beats
     from cardiosoft.pump import load
     from cardiosoft.units import mmHg
@@ -264,6 +298,10 @@ def crosshead(pump_name):
     heads = np.asarray(HEADS_MMHG) * mmHg
     cases = {f"ramp {1e3 * r:.0f} ms": {"ramp_time": r} for r in RAMPS_S}
     cases["raised cosine"] = {"shape": "cosine"}
+    for t, branch in ring_row["silicone_branches"].items():
+        cases[f"silicone tan d {t:g}"] = branch
+    for t, branch in ring_row["silicone_branches"].items():
+        cases[f"ramp 50 ms + silicone {t:g}"] = branch | {"ramp_time": 0.05}
     results = {}
     for label, changes in cases.items():
         out = solve_beats(_bench(pump_name, **changes), afterload=heads, save="metrics", pump=pump)
@@ -319,28 +357,27 @@ def diagnosis_table(rows) -> str:
     return table(header, units, body)
 
 
-def crosshead_table(results_by_pump) -> str:
+def candidates_simulated_table(results_by_pump) -> str:
+    """Each simulated candidate's peak forces and dynamic SVs, and their change from the pump's
+    calibrated bench with the ideal crosshead (the ``ramp 0 ms`` row)."""
     from cardiosoft.console import table
 
     paper_force, paper_sv = _paper()
-    header = ["pump", "pull", "peak force 30/60/90", "dynamic SV 30/60/90"]
-    units = ["", "", "N", "ml"]
-    body = [
-        [
-            "paper",
-            "",
-            " / ".join(f"{v:.1f}" for v in paper_force),
-            " / ".join(f"{v:.1f}" for v in paper_sv),
-        ]
-    ]
+    header = ["pump", "candidate", "peak force 30/60/90", "change", "dynamic SV 30/60/90", "change"]
+    units = ["", "", "N", "N", "ml", "ml"]
+    joined = lambda values, fmt="{:.1f}": " / ".join(fmt.format(v) for v in values)  # noqa: E731
+    body = [["paper", "", joined(paper_force), "", joined(paper_sv), ""]]
     for pump, results in results_by_pump.items():
+        base_force, base_sv = results["ramp 0 ms"]
         for label, (force, sv) in results.items():
             body.append(
                 [
                     pump,
                     label,
-                    " / ".join(f"{v:.1f}" for v in force),
-                    " / ".join(f"{v:.1f}" for v in sv),
+                    joined(force),
+                    joined(force - base_force, "{:+.1f}"),
+                    joined(sv),
+                    joined(sv - base_sv, "{:+.1f}"),
                 ]
             )
     return table(header, units, body)
@@ -417,21 +454,25 @@ def main(argv=None) -> int:
             print(f"error: {err}", file=sys.stderr)
             return 2
     start = time.perf_counter()
-    diagnosed, crossheads = {}, {}
+    diagnosed, simulations = {}, {}
     for pump in PUMPS:
         print(f"{pump}: the 30-bpm beats and the ramp scan ...", file=sys.stderr)
         diagnosed[pump] = diagnose(pump)
-        crossheads[pump] = crosshead(pump)
+        simulations[pump] = simulated(pump, diagnosed[pump][0][1])
     print("The ring at 30 bpm, the bench linearised at the instant of the peak force")
     print(diagnosis_table([row for rows, _, _ in diagnosed.values() for row in rows]))
     print("\nCandidates (c) and (d) at the 60-mmHg ring, orders of magnitude (module docstring)")
     scenes = {pump: _bench(pump) for pump in PUMPS}
     print(candidates_table(scenes, {pump: diagnosed[pump][0][1] for pump in PUMPS}))
-    print("\nThe crosshead's motion: jerk-limited ramps (ramp time), and the raised-cosine pull")
-    print(crosshead_table(crossheads))
+    print(
+        "\nThe candidates simulated: (a) the crosshead's jerk-limited ramps and the "
+        "raised-cosine pull, (d) a silicone's loss at the 60-mmHg ring in place of the "
+        "calibrated branch, and together"
+    )
+    print(candidates_simulated_table(simulations))
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        figure(out, diagnosed, crossheads)
+        figure(out, diagnosed, simulations)
         print(f"wrote {out}", file=sys.stderr)
     print(f"done in {time.perf_counter() - start:.0f} s", file=sys.stderr)
     return 0

@@ -45,3 +45,20 @@ def test_linear_ring_is_the_free_ring_of_the_simulated_bench():
     linear = ring.linear_ring(scene, pump, traces, int(hold[0]))
     assert linear.frequency == pytest.approx(measured, rel=0.05)
     assert 0.0 < linear.damping_ratio < 0.2 and linear.chamber_compliance > 0.0
+
+
+def test_silicone_branch_has_its_loss_factor_at_the_ring():
+    """A second method for ``silicone_branch``: the branch it returns, put in the scene, has the
+    loss factor asked at the ring's frequency by ``branch_loss_factor``'s own formula (storage
+    and loss moduli of the standard linear solid), and that is its peak over frequency."""
+    scene = load_scene("bench-dynamic").replace(bpm=30.0)
+    pump = load()
+    out = solve_beats(scene, afterload=np.array([60 * mmHg]), save="traces", pump=pump, beats=1)
+    traces = {k: np.asarray(v)[0] for k, v in out.traces.items()}
+    i = int(np.argmax(traces["cable_force"]))
+    f = ring.linear_ring(scene, pump, traces, i).frequency
+    for tan_delta in ring.SILICONE_LOSS_FACTOR:
+        silicone = scene.replace(**ring.silicone_branch(scene, pump, traces, i, f, tan_delta))
+        at = [ring.branch_loss_factor(silicone, pump, traces, i, f * g) for g in (0.8, 1, 1.25)]
+        assert at[1] == pytest.approx(tan_delta, rel=1e-9)
+        assert at[0] < at[1] and at[2] < at[1]
