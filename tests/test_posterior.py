@@ -402,7 +402,10 @@ def test_leaving_an_afterload_out_drops_its_four_rows():
 
 @pytest.fixture(scope="module")
 def bench_30():
-    return check.bench(load_posterior(), load_paper_data())
+    from fit.posterior import artifact
+
+    post = load_posterior()
+    return check.bench(post, load_paper_data(), artifact.bench_scene(post.card["surrogate"]))
 
 
 @pytest.mark.slow

@@ -339,7 +339,7 @@ def _check(args) -> int:
         f" (the paper's FEM misses these by {fem:.2f} ml on average)",
     ))
     print()
-    b = check.bench(post, data, seed=args.seed)
+    b = check.bench(post, data, artifact.bench_scene(post.card["surrogate"]), seed=args.seed)
     _print_bench(check, b, "30-bpm bench: dynamic SV [ml] (fitted) against the 95 % band "
                  "(draws, discrepancy, the paper's sd)",
                  "30-bpm bench: peak force [N] (not fitted) against the 95 % band")

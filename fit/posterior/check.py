@@ -115,19 +115,20 @@ class BenchCheck(NamedTuple):
     failed: int
 
 
-def bench(posterior, data, *, seed: int = 0, heads=None) -> BenchCheck:
+def bench(posterior, data, scene, *, seed: int = 0, heads=None) -> BenchCheck:
     """The 30-bpm bench's dynamic SVs (ml) and peak forces (N) against their bands: the draws
     solved as one ensemble, the discrepancy (``posterior.card``) and the paper's sd sampled.
-    ``heads``: indices of the paper's afterloads to check (default all)."""
+    ``scene``: the posterior's surrogate on its calibrated bench
+    (:func:`fit.posterior.artifact.bench_scene`); ``heads``: indices of the paper's afterloads to
+    check (default all)."""
     from cardiosoft.batch import solve_beats
     from cardiosoft.posterior import discrepancy_sd, ensemble_run
     from cardiosoft.units import mmHg
-    from fit.posterior import artifact
 
     b = data.fig10_bench
     heads = list(range(len(b["afterload_mmHg"]))) if heads is None else list(heads)
     pick = lambda a: np.asarray(a, float)[heads]  # noqa: E731
-    scene = artifact.bench_scene(posterior.card["surrogate"]).replace(
+    scene = scene.replace(
         bpm=30.0, afterloads=tuple(float(p) * mmHg for p in pick(b["afterload_mmHg"]))
     )
     ens = ensemble_run(scene, posterior)
@@ -199,7 +200,7 @@ def leave_one_afterload_out(fit, *, n_draws: int = LOAO_DRAWS, seed: int = 0,
             float(heads[keep].min()), float(heads[keep].max())
         ]
         posterior = artifact.as_ensemble(fit.layout, theta, card)
-        parts.append(bench(posterior, fit.data, seed=seed, heads=[i]))
+        parts.append(bench(posterior, fit.data, fit.scene, seed=seed, heads=[i]))
         failed += parts[-1].failed
     def join(kind):
         covs = [getattr(part, kind) for part in parts]
