@@ -125,17 +125,24 @@ def linear_ring(scene, pump, traces, i) -> Ring:
     )
 
 
+def _stiffnesses(scene, pump, traces, i) -> tuple[float, float]:
+    """At sample ``i``: the chamber's stiffness k = d2U/dV2 and its zero-pressure elastance
+    E(x), on which the viscoelastic branch's spring r E(x) stands (Pa/m^3)."""
+    import jax.numpy as jnp
+
+    volume, pull = jnp.asarray(traces["volume"][i]), jnp.asarray(traces["pull"][i])
+    k = float(pump.stiffness(volume, pull, scene.omega))
+    return k, float(pump.chamber_elastance(pull, scene.omega))
+
+
 def branch_loss_factor(scene, pump, traces, i, f) -> float:
     """tan(delta) of the chamber with the calibrated viscoelastic branch (a standard linear
     solid, ``cardiosoft.circuit.ShellViscoelasticity``: spring r E(x) and time tau beside the
     chamber's stiffness k) at frequency f (Hz), at sample ``i``."""
     if not scene.has("shell_viscoelasticity"):
         return 0.0
-    import jax.numpy as jnp
-
-    volume, pull = jnp.asarray(traces["volume"][i]), jnp.asarray(traces["pull"][i])
-    k = float(pump.stiffness(volume, pull, scene.omega))
-    branch = scene.viscoelastic_ratio * float(pump.chamber_elastance(pull, scene.omega))
+    k, elastance = _stiffnesses(scene, pump, traces, i)
+    branch = scene.viscoelastic_ratio * elastance
     wt = 2.0 * np.pi * f * scene.relaxation_time
     storage = k + branch * wt**2 / (1.0 + wt**2)
     return branch * wt / (1.0 + wt**2) / storage
@@ -149,13 +156,10 @@ def silicone_branch(scene, pump, traces, i, f, tan_delta) -> dict:
     b w^2)`` peaks at ``w = 1 / s``, ``s = sqrt(1 + b / k)``, at ``(s^2 - 1) / (2 s)``; so
     ``s = t + sqrt(t^2 + 1)``. Returns the scene's ``viscoelastic_ratio`` and
     ``relaxation_time`` (s)."""
-    import jax.numpy as jnp
-
-    volume, pull = jnp.asarray(traces["volume"][i]), jnp.asarray(traces["pull"][i])
-    k = float(pump.stiffness(volume, pull, scene.omega))
+    k, elastance = _stiffnesses(scene, pump, traces, i)
     s = tan_delta + math.sqrt(tan_delta**2 + 1.0)
     return {
-        "viscoelastic_ratio": (s**2 - 1.0) * k / float(pump.chamber_elastance(pull, scene.omega)),
+        "viscoelastic_ratio": (s**2 - 1.0) * k / elastance,
         "relaxation_time": 1.0 / (2.0 * math.pi * f * s),
     }
 
