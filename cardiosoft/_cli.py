@@ -72,8 +72,9 @@ def add_scene_option(parser, *, static: bool = True, loops: bool = False) -> Non
     parser.add_argument(
         "--scene",
         default="bench-dynamic",
-        help=f"shipped scene ({', '.join(names)}{closed}) or a scene .toml file "
-        "(default: bench-dynamic)",
+        help=f"shipped scene ({', '.join(names)}{closed}), a scene .toml file, or an "
+        "svZeroDSolver model .json (run as svZeroDSolver runs it; --out writes traces.csv under "
+        "its variable names) (default: bench-dynamic)",
     )
     add_pump_option(parser)
 

@@ -415,6 +415,10 @@ def main(argv=None, prog: str | None = None) -> int:
     from cardiosoft.results import summary_records
 
     console = Console(quiet=args.quiet, strict=args.strict)
+    if args.scene.endswith(".json"):  # an svZeroDSolver model: the network's own run
+        from cardiosoft.network.cli import simulate_model
+
+        return simulate_model(args, console)
     out_dir = Path(args.out) if args.out else None
     posterior = every_draw = None
     try:

@@ -1,0 +1,115 @@
+"""``cardiosoft simulate --scene model.json``: an svZeroDSolver model, run as svZeroDSolver runs
+it. Prints each node's mean pressure and flow over the reported beat in the model's own units
+and, with ``--out DIR``, writes ``traces.csv`` (``time`` and one column per svZeroDSolver
+variable, under svZeroDSolver's names) and ``summary.json``.
+
+Exit status: 0; 1 when the solve failed or its Newton did not converge; 2 on bad input (a
+model or an option this reader does not take, refused in one line).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+OUTPUT_FILES = ("summary.json", "traces.csv")
+
+_SCENE_ONLY = (
+    ("omega", None),
+    ("shortening", None),
+    ("bpm", None),
+    ("afterload", None),
+    ("beats", None),
+    ("max_steps", None),
+    ("pump", None),
+    ("add_effect", []),
+    ("energy", False),
+    ("compare_paper", False),
+    ("verify", False),
+    ("uncertainty", False),
+    ("explain", False),
+)
+"""Options of ``simulate`` that belong to the pump's scenes, with their defaults."""
+
+
+def _check_options(args) -> None:
+    for name, default in _SCENE_ONLY:
+        if getattr(args, name, default) != default:
+            raise ValueError(
+                f"--{name.replace('_', '-')} does not apply to an svZeroDSolver model; "
+                "its file sets the run"
+            )
+    if getattr(args, "steady", "beats") != "beats":
+        raise ValueError("--steady: an svZeroDSolver model runs its own number_of_cardiac_cycles")
+
+
+def simulate_model(args, console) -> int:
+    """Run the model ``args.scene`` names; returns the exit status."""
+    from cardiosoft.console import fail
+    from cardiosoft.files import check_writable_folder, refuse_overwrite, write_together
+    from cardiosoft.network import read, simulate
+
+    out_dir = Path(args.out) if args.out else None
+    try:
+        _check_options(args)
+        if out_dir is not None:
+            check_writable_folder(out_dir)
+            for name in OUTPUT_FILES:
+                refuse_overwrite(out_dir / name, args.force)
+        model = read(args.scene)
+    except OSError as err:
+        return fail(ValueError(f"--scene {args.scene}: {err.strerror or err}"))
+    except ValueError as err:  # an unsupported model or option, a broken JSON file
+        return fail(ValueError(f"--scene {args.scene}: {err}"))
+    sim, net = model.simulation, model.network
+    console.say(
+        f"{model.name} (svZeroDSolver model): {len(net.blocks)} blocks, {net.n_nodes} nodes, "
+        f"{net.n_states} states; {sim.cycles} beats of {net.period:g} s; "
+        "compiling, then solving ..."
+    )
+    start = time.perf_counter()
+    traces = simulate(model, args.accuracy or "default")
+    seconds = time.perf_counter() - start
+    console.say(
+        f"done in {seconds:.1f} s ({traces.steps} steps"
+        + (", implicit solver)" if traces.stiff else ")")
+    )
+    if traces.steady_start is False:
+        console.fail(model.name, "the steady start-up's Newton did not converge")
+    if not traces.solved:
+        console.fail(model.name, "the solve failed, or the nodes' Newton did not converge")
+    if not args.quiet:
+        print(_table(model, traces))
+    if out_dir is not None:
+        summary = {
+            "model": model.name,
+            "units": "the model's own (svZeroDSolver files carry none)",
+            "period": net.period,
+            "beats": sim.cycles,
+            "accuracy": args.accuracy or "default",
+            "solved": traces.solved,
+            "steady_start": traces.steady_start,
+            "steps": traces.steps,
+            "implicit_solver": traces.stiff,
+            "seconds": seconds,
+            **console.record(),
+        }
+        with write_together(out_dir) as staging:
+            traces.write_csv(staging / "traces.csv")
+            (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        for name in OUTPUT_FILES:
+            console.say(f"wrote {out_dir / name}")
+    return console.status()
+
+
+def _table(model, traces) -> str:
+    """Each node's mean pressure and flow over the reported time (the model's units)."""
+    rows = [f"{'node':40s} {'mean pressure':>15s} {'mean flow':>15s}"]
+    for up, down in model.network.nodes:
+        p = np.mean(traces.values[f"pressure:{up}:{down}"])
+        q = np.mean(traces.values[f"flow:{up}:{down}"])
+        rows.append(f"{up + ':' + down:40s} {p:15.6g} {q:15.6g}")
+    return "\n".join(rows)

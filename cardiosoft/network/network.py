@@ -1,0 +1,235 @@
+"""A network of blocks compiled into one vector field.
+
+The unknowns are the blocks' states ``x`` (integrated by diffrax) and the nodes' pressures and
+flows ``z = (P, Q)`` (algebraic). Every block contributes residuals on ``z``; together they are as
+many as the unknowns of ``z`` (svZeroDSolver's count, less the internal variables that are
+states here). The field solves them for ``z`` at each evaluation and returns the states' rates:
+
+- a network whose residuals are affine in ``z`` (no stenosis, no valve) takes one Newton step from
+  ``z = 0``, which is exact: a forward-mode Jacobian of the residuals (m columns, m = 2 x nodes)
+  and one dense LU solve of size m;
+- otherwise Newton takes ``NEWTON_STEPS`` more steps from there (as many LU solves): a fixed
+  count, so that the field is one straight-line program whose derivative is exact. The run
+  checks, at its output times, that one more step would move ``z`` by less than
+  ``NEWTON_TOLERANCE`` relative (:meth:`Network.newton_converged`).
+
+The algebraic part must be uniquely solvable for ``z`` given ``x`` (an index-1 DAE). A model where
+it is not (an inductor in series with a flow source: a flow that is both a state and prescribed)
+is refused when the network is built, by the rank of that Jacobian.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cardiosoft.network.blocks import Block
+
+NEWTON_STEPS = 6
+"""Newton steps on a nonlinear network's node unknowns after the first, linear one."""
+NEWTON_TOLERANCE = 1e-9
+"""The largest relative size of one more Newton step at which a solve counts as converged."""
+STEADY_NEWTON_STEPS = 30
+"""Newton steps of the steady start-up (run once per model)."""
+
+
+def _newton(g, w, steps, groups):
+    """``steps`` Newton steps on ``g(w) = 0`` from ``w``; returns ``w`` and the size of one more
+    step: as it is when ``groups`` is None, else its largest part relative to the largest
+    magnitude in each group of like unknowns (``groups``: index arrays, e.g. the pressures and
+    the flows), so that a flow that crosses zero is judged against the flows, not itself."""
+
+    def step(w):
+        return jnp.linalg.solve(jax.jacfwd(g)(w), g(w))
+
+    w = jax.lax.fori_loop(0, steps, lambda _, w: w - step(w), w)
+    delta = jnp.abs(step(w))
+    if groups is None:
+        return w, delta
+    # a group all at zero (no flow anywhere) is judged against the largest unknown
+    floor = 1e-12 * jnp.max(jnp.abs(w), initial=0.0) + 1e-300
+    change = [
+        jnp.max(delta[i]) / jnp.maximum(jnp.max(jnp.abs(w[i])), floor) for i in groups if len(i)
+    ]
+    return w, jnp.max(jnp.stack(change)) if change else jnp.zeros(())
+
+
+class Network(eqx.Module):
+    """Blocks joined at nodes. ``nodes`` (static) are the (upstream, downstream) names of each
+    connection, in svZeroDSolver's order; ``period`` (static, s in the model's units of time)
+    is the cardiac period."""
+
+    blocks: tuple[Block, ...]
+    nodes: tuple[tuple[str, str], ...] = eqx.field(static=True)
+    period: float = eqx.field(static=True)
+    reduction: tuple[tuple[float, ...], ...] | None = eqx.field(static=True, default=None)
+    """An orthogonal basis of the residuals' space whose first ``n_constraints`` rows combine
+    residuals into constraints on the states alone (see :func:`reduce_index`); None when
+    there are none."""
+    n_constraints: int = eqx.field(static=True, default=0)
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.nodes)
+
+    @property
+    def n_states(self) -> int:
+        return sum(b.n_states for b in self.blocks)
+
+    @property
+    def nonlinear(self) -> bool:
+        return any(b.nonlinear for b in self.blocks)
+
+    def _offsets(self):
+        offsets, k = [], 0
+        for b in self.blocks:
+            offsets.append(k)
+            k += b.n_states
+        return offsets
+
+    def _each(self, x, z):
+        """(block, its states, its ports' P, its ports' Q) per block."""
+        P, Q = z[: self.n_nodes], z[self.n_nodes :]
+        for b, k in zip(self.blocks, self._offsets(), strict=True):
+            ports = np.asarray(b.ports, dtype=int)
+            yield b, x[k : k + b.n_states], P[ports], Q[ports]
+
+    def residuals(self, t, x, z, steady: bool = False):
+        """Every block's algebraic residuals, stacked (as many as ``z``)."""
+        return jnp.concatenate(
+            [b.residuals(t, xb, P, Q, steady) for b, xb, P, Q in self._each(x, z)]
+        )
+
+    def rates(self, t, x, z, steady: bool = False):
+        """Every block's state derivatives, stacked like ``x``."""
+        parts = [b.rates(t, xb, P, Q, steady) for b, xb, P, Q in self._each(x, z)]
+        return jnp.concatenate(parts) if parts else x
+
+    def _algebraic(self, t, x, z, steady):
+        """The equations that fix ``z``: the residuals, where the reduction has turned the
+        combinations of them that hold no node unknown into their time derivatives."""
+        g = self.residuals(t, x, z, steady)
+        if self.reduction is None or steady:
+            return g
+        basis = jnp.asarray(self.reduction, dtype=g.dtype)
+        k = self.n_constraints
+        rates = self.rates(t, x, z, steady)
+        _, change = jax.jvp(
+            lambda x_, t_: self.residuals(t_, x_, z, steady),
+            (x, jnp.asarray(t, dtype=x.dtype)),
+            (rates, jnp.ones((), x.dtype)),
+        )
+        return jnp.concatenate([basis[k:] @ g, basis[:k] @ change])
+
+    def node_values(self, t, x, steady: bool = False):
+        """The nodes' pressures and flows ``z = (P, Q)`` at states ``x``."""
+        z, _ = self._node_solve(t, x, steady)
+        return z
+
+    def _node_solve(self, t, x, steady=False):
+        def g(z):
+            return self._algebraic(t, x, z, steady)
+
+        steps = 1 + NEWTON_STEPS * self.nonlinear
+        return _newton(g, jnp.zeros(2 * self.n_nodes, dtype=x.dtype), steps, None)
+
+    def _groups(self, offset):
+        """Index arrays of the pressures and of the flows in ``z``, shifted by ``offset``."""
+        n = self.n_nodes
+        return [np.arange(n) + offset, np.arange(n, 2 * n) + offset]
+
+    def newton_converged(self, t, x, scale) -> jnp.ndarray:
+        """Whether the field's Newton on the nodes converged at ``(t, x)``: one more step moves
+        the pressures and the flows by at most ``NEWTON_TOLERANCE`` times ``scale``
+        (the largest pressure and flow of the run, say)."""
+        delta = self._node_solve(t, x)[1]
+        n = self.n_nodes
+        return (jnp.max(delta[:n]) <= NEWTON_TOLERANCE * scale[0]) & (
+            jnp.max(delta[n:]) <= NEWTON_TOLERANCE * scale[1]
+        )
+
+    def vector_field(self, t, x, steady: bool = False):
+        """``dx/dt`` at ``(t, x)``; ``steady`` uses the steady start-up's equations."""
+        return self.rates(t, x, self.node_values(t, x, steady), steady)
+
+    def outputs(self, t, x, z) -> dict:
+        """The blocks' internal variables by svZeroDSolver name."""
+        out = {}
+        for b, xb, P, Q in self._each(x, z):
+            out.update(b.outputs(t, xb, P, Q))
+        return out
+
+    @eqx.filter_jit
+    def consistent(self, t, x):
+        """``x`` moved (least change) onto the constraints the reduction keeps: what the
+        sources pin at time ``t``. A start off them would stay off by the same amount."""
+        if self.reduction is None:
+            return x
+        basis = jnp.asarray(self.reduction, dtype=x.dtype)[: self.n_constraints]
+        zeros = jnp.zeros(2 * self.n_nodes, dtype=x.dtype)
+
+        def c(x):
+            return basis @ self.residuals(t, x, zeros)
+
+        return x - jnp.linalg.pinv(jax.jacfwd(c)(x)) @ c(x)
+
+    @eqx.filter_jit
+    def steady_state(self, x0):
+        """The states and node values with every rate zero under the steady equations: the state
+        svZeroDSolver's steady start-up marches towards (``Solver::setup_initial``)."""
+        n = x0.shape[0]
+
+        def g(w, _):
+            x, z = w[:n], w[n:]
+            return jnp.concatenate([self.rates(0.0, x, z, True), self.residuals(0.0, x, z, True)])
+
+        w0 = jnp.concatenate([x0, jnp.zeros(2 * self.n_nodes, dtype=x0.dtype)])
+        kinds = [k for b in self.blocks for k in b.state_kinds()]
+        groups = [np.flatnonzero([k == kind for k in kinds]) for kind in set(kinds)]
+        w, change = _newton(lambda w: g(w, None), w0, STEADY_NEWTON_STEPS, groups + self._groups(n))
+        return w[:n], change <= NEWTON_TOLERANCE
+
+
+@eqx.filter_jit
+def _jacobian_in_nodes(net: Network, t, x, algebraic: bool):
+    z = jnp.zeros(2 * net.n_nodes, dtype=x.dtype)
+    g = (
+        (lambda z: net._algebraic(t, x, z, False))
+        if algebraic
+        else (lambda z: net.residuals(t, x, z))
+    )
+    return jax.jacfwd(g)(z)
+
+
+def reduce_index(net: Network, x0) -> Network:
+    """``net``, with its index reduced to 1 where sources pin its states.
+
+    A capacitor tied to a pressure source, or an inductor in series with a flow source, has a
+    state that the residuals fix outright: some combination ``c = N g`` of the residuals holds
+    no node unknown (``N dg/dz = 0``), so ``z`` is not determined by ``g = 0`` alone (an
+    index-2 DAE). Such combinations are replaced by their time derivative,
+    ``N (dg/dx dx/dt + dg/dt) = 0``, which holds node unknowns through ``dx/dt``; the
+    constraint itself then holds along the solution if it holds at the start. ``N`` is the left
+    null space of ``dg/dz`` at ``(0, x0)``: the combinations come from the wiring, not from
+    values. Raises :class:`ValueError` when the reduced equations still leave ``z`` undetermined.
+    """
+    J = np.asarray(_jacobian_in_nodes(net, 0.0, x0, algebraic=False))
+    U, s, _ = np.linalg.svd(J)
+    rank = int(np.sum(s > s[0] * 1e-10)) if s.size else 0
+    m = J.shape[0]
+    if rank == m:
+        return net
+    # rows: first the null space's combinations, then the range's
+    basis = np.concatenate([U[:, rank:].T, U[:, :rank].T])
+    reduced = Network(
+        net.blocks, net.nodes, net.period, tuple(map(tuple, basis.tolist())), m - rank
+    )
+    J = np.asarray(_jacobian_in_nodes(reduced, 0.0, x0, algebraic=True))
+    if np.linalg.matrix_rank(J, tol=np.abs(J).max() * 1e-10) < m:
+        raise ValueError(
+            "the model's nodes are not determined by its equations, even with its sources' "
+            "constraints differentiated once (a DAE of index above 2)"
+        )
+    return reduced

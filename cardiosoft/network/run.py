@@ -1,0 +1,158 @@
+"""Run a read svZeroDSolver model: its beats from its initial condition, as svZeroDSolver defines
+them, and its variables at svZeroDSolver's output times.
+
+svZeroDSolver steps a fixed step of ``T / (N - 1)`` (N points a beat) with a generalized-alpha
+scheme; here diffrax's adaptive solver integrates the states to the preset's tolerance and is
+read out at the same times, so the answer is the model's converged one, not the scheme's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cardiosoft.network.svzerod import Model
+from cardiosoft.solve import PRESETS, SolverConfig, integrate, preset
+
+
+@dataclass(frozen=True)
+class Traces:
+    """svZeroDSolver's variables at its output times.
+
+    - ``time``: s (in the model's units); reset to 0 at the last beat's start unless every
+      beat is output, as svZeroDSolver does;
+    - ``values``: each variable by its svZeroDSolver name (``pressure:UP:DOWN``,
+      ``flow:UP:DOWN``, ``pressure_c:NAME``, ...), in the model's units;
+    - ``solved``: the time integration reached the end, and the nodes' Newton converged at
+      every output time; ``steady_start``: the steady start-up's
+      Newton converged (None when the model starts from its initial condition);
+    - ``steps``: the integrator's accepted steps, ``stiff``: whether the implicit solver was
+      needed (the explicit one ran out of steps).
+    """
+
+    time: np.ndarray
+    values: dict
+    solved: bool
+    steady_start: bool | None
+    steps: int
+    stiff: bool
+
+    def write_csv(self, path) -> None:
+        """``time`` and one column per variable, as ``path`` (written whole or not at all)."""
+        from cardiosoft.files import atomic_path
+
+        names = list(self.values)
+        table = np.column_stack([self.time, *(self.values[n] for n in names)])
+        with atomic_path(path) as tmp:
+            np.savetxt(
+                tmp,
+                table,
+                delimiter=",",
+                header=",".join(["time", *names]),
+                comments="",
+                fmt="%.10g",
+            )
+
+
+def _tolerances(net, x0, z0, rtol):
+    """Absolute tolerances per state: ``rtol`` times the largest magnitude of its kind (pressure,
+    flow, volume) at the start, so that a state near zero is not asked for digits it has not."""
+    n = net.n_nodes
+    scale = {
+        "pressure": float(jnp.max(jnp.abs(z0[:n]), initial=0.0)),
+        "flow": float(jnp.max(jnp.abs(z0[n:]), initial=0.0)),
+        "volume": 0.0,
+    }
+    kinds = [k for b in net.blocks for k in b.state_kinds()]
+    for k, v in zip(kinds, np.abs(np.asarray(x0)), strict=True):
+        scale[k] = max(scale[k], float(v))
+    return jnp.asarray([rtol * (scale[k] or 1.0) for k in kinds])
+
+
+def _jump_times(net, t_end):
+    """The time tables' samples over the run: kinks of the forcing the controller steps to."""
+    knots = []
+    for leaf in jax.tree_util.tree_leaves(net, is_leaf=lambda v: hasattr(v, "times")):
+        if hasattr(leaf, "times") and leaf.times.shape[0] > 1:
+            period = float(leaf.period)
+            base = np.mod(np.asarray(leaf.times), period)
+            cycles = np.arange(int(np.ceil(t_end / period)) + 1) * period
+            knots.append((cycles[:, None] + base[None, :]).ravel())
+    if not knots:
+        return None
+    knots = np.unique(np.concatenate(knots))
+    return jnp.asarray(knots[(knots > 0) & (knots < t_end)])
+
+
+def simulate(model: Model, accuracy: str = "default") -> Traces:
+    """Run ``model`` for its number of beats and return its variables at svZeroDSolver's output
+    times. ``accuracy`` names a solver preset (``cardiosoft.solve.PRESETS``)."""
+    if accuracy not in PRESETS:
+        raise ValueError(f"accuracy {accuracy!r} is not one of {', '.join(PRESETS)}")
+    net, sim = model.network, model.simulation
+    x0 = model.initial_states()
+    steady_start = None
+    if sim.steady_initial:
+        x0, ok = net.steady_state(x0)
+        steady_start = bool(ok)
+    x0 = net.consistent(0.0, x0)
+    dt = net.period / sim.steps_per_cycle
+    t_all = dt * np.arange(sim.steps_per_cycle * sim.cycles + 1)
+    ts = t_all if sim.output_all_cycles else t_all[-sim.points_per_cycle :]
+    ts = jnp.asarray(ts)
+    if net.n_states == 0:
+        zs, internal, converged = _read_out(net, ts, jnp.zeros((ts.shape[0], 0)))
+        steps, stiff, solved = 0, False, True
+    else:
+        rtol = PRESETS[accuracy]["rtol"]
+        atol = _tolerances(net, x0, net.node_values(0.0, x0), rtol)
+        jumps = _jump_times(net, t_all[-1])
+        for stiff in (False, True):
+            base = preset(accuracy, stiff=stiff)
+            config = SolverConfig(base.solver, rtol, atol, base.pcoeff, base.icoeff, base.max_steps)
+            zs, internal, converged, result, steps = _run(
+                net, x0, float(t_all[-1]), ts, jumps, config
+            )
+            solved = bool(result == diffrax.RESULTS.successful)
+            if solved:
+                break
+        steps = int(steps)
+    solved = solved and bool(converged)
+    values = {}
+    n = net.n_nodes
+    for i, (up, down) in enumerate(net.nodes):
+        values[f"pressure:{up}:{down}"] = np.asarray(zs[:, i])
+        values[f"flow:{up}:{down}"] = np.asarray(zs[:, n + i])
+    values.update({k: np.asarray(v) for k, v in internal.items()})
+    time = ts if sim.output_all_cycles else ts - ts[0]
+    return Traces(np.asarray(time), values, solved, steady_start, steps, stiff)
+
+
+@eqx.filter_jit
+def _read_out(net, ts, xs):
+    """The nodes' values, the internal variables and whether Newton converged, at ``ts``."""
+    zs = jax.vmap(net.node_values)(ts, xs)
+    n = net.n_nodes
+    scale = jnp.stack([jnp.max(jnp.abs(zs[:, :n])), jnp.max(jnp.abs(zs[:, n:]))])
+    converged = jax.vmap(net.newton_converged, in_axes=(0, 0, None))(ts, xs, scale)
+    return zs, jax.vmap(net.outputs)(ts, xs, zs), jnp.all(converged)
+
+
+@eqx.filter_jit
+def _run(net, x0, t_end, ts, jumps, config):
+    sol = integrate(
+        lambda t, x, net: net.vector_field(t, x),
+        x0,
+        0.0,
+        t_end,
+        args=net,
+        ts=ts,
+        jump_ts=jumps,
+        config=config,
+    )
+    return (*_read_out(net, ts, sol.ys), sol.result, sol.stats["num_accepted_steps"])
