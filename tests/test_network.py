@@ -1,12 +1,13 @@
 """svZeroDSolver's models through cardiosoft's network, checked against svZeroDSolver itself.
 
 svZeroDSolver steps a fixed-step second-order generalized-alpha scheme, so its answer depends on
-its step. Each check runs ``svzerod`` at the case's own step and at 2x and 4x finer, measures the
-observed order p from the three, and estimates the error left at the finest step as
-``|y_4 - y_2| / (2^p - 1)`` (Richardson). Our adaptive solve (preset "reference", rtol 1e-10)
-must lie within twice that estimate of the finest ``svzerod`` answer, plus 1e-7 of each
-variable's range: svZeroDSolver's own Newton stops at an absolute 1e-8 or 1e-9 in the model's
-units. The tolerance is therefore the case's own, printed on failure.
+its step. Each check runs ``svzerod`` at the step ``h`` of the case (times a base refinement
+where the case needs it to get into the asymptotic range), h/4 and h/16, measures the observed
+order p from the three, and estimates the error left at h/16 as ``|y_4 - y_16| / (4^p - 1)``
+(Richardson, p clipped to [1, 3]). Our adaptive solve (preset "reference", rtol 1e-10) must lie
+within twice that estimate of the finest ``svzerod`` answer, plus 1e-7 of each variable's range:
+svZeroDSolver's own Newton stops at an absolute 1e-8 or 1e-9 in the model's units. The
+tolerance is therefore the case's own, printed on failure.
 """
 
 import json
@@ -19,11 +20,16 @@ import svzerod
 from cardiosoft import network
 
 CASES = Path(__file__).parent / "data" / "svzerod"
-SUPPORTED = sorted(
-    p.stem
-    for p in CASES.glob("*.json")
-    if p.stem not in ("valve_tanh", "pulsatileFlow_R_RCR_mismatchPeriod")
-)
+NOT_COMPARED = {
+    "pulsatileFlow_R_RCR_mismatchPeriod": "refused, as svzerod refuses it",
+    "closedLoopHeart_singleVessel_mistmatchPeriod": "refused, as svzerod refuses it",
+    "pulsatileFlow_CRL": "its inflow is C dP/dt of a piecewise-linear table: at the table's "
+    "samples, where the output is, the derivative jumps; checked against its closed form",
+}
+BASE_REFINEMENT = {"valve_tanh": 4, "closedLoopHeart_singleVessel": 4}
+"""Cases whose svzerod answer at their own step is outside the asymptotic range (a steep valve:
+at its own step svzerod's valve status is 50 % off its value at a quarter of the step)."""
+SUPPORTED = sorted(p.stem for p in CASES.glob("*.json") if p.stem not in NOT_COMPARED)
 FAST = ("pulsatileFlow_R_RCR",)
 """In CI: a pulsatile RCR. An index-2 model and pure algebra through a junction are checked
 against their upstream closed forms below."""
@@ -40,19 +46,34 @@ def _svzerod(config: dict, refine: int) -> dict:
     return {name: group["y"].to_numpy()[::refine] for name, group in frame.groupby("name")}
 
 
+def _compared(var: str, ours):
+    """The samples where a variable means the same in both solvers. A closed valve of the
+    combined heart block carries no flow here (0); svzerod reports its inductor's drift there,
+    which no equation uses (its valve factor is 0). Valve flows are compared where the valve
+    is open here, at the sample and both neighbours (a switch falls between two samples)."""
+    if var.startswith("Q_") and var.endswith(":CLH"):
+        is_open = ours != 0
+        return is_open & np.roll(is_open, 1) & np.roll(is_open, -1)
+    return np.ones(ours.shape, dtype=bool)
+
+
 def check_against_svzerod(name: str) -> None:
     config = json.loads((CASES / f"{name}.json").read_text())
     traces = network.simulate(network.read(config), "reference")
     assert traces.solved and traces.steady_start in (True, None)
-    y1, y2, y4 = (_svzerod(config, r) for r in (1, 2, 4))
-    assert set(traces.values) == set(y4), "svZeroDSolver's variable names"
+    base = BASE_REFINEMENT.get(name, 1)
+    y1, y4, y16 = (_svzerod(config, base * r) for r in (1, 4, 16))
+    assert set(traces.values) == set(y16), "svZeroDSolver's variable names"
     for var, ours in traces.values.items():
-        scale = np.ptp(y4[var]) + np.max(np.abs(y4[var])) * 1e-3 + 1e-300
-        e12, e24 = np.max(np.abs(y1[var] - y2[var])), np.max(np.abs(y2[var] - y4[var]))
-        order = np.clip(np.log2(e12 / e24), 1.0, 3.0) if e24 > 1e-9 * scale else 2.0
-        left = e24 / (2**order - 1)
+        at = _compared(var, ours)
+        ref = y16[var][at]
+        scale = np.ptp(y16[var]) + np.max(np.abs(y16[var])) * 1e-3 + 1e-300
+        e1 = np.max(np.abs(y1[var] - y4[var])[at])
+        e4 = np.max(np.abs(y4[var][at] - ref))
+        order = np.clip(np.log(e1 / e4) / np.log(4), 1.0, 3.0) if e4 > 1e-9 * scale else 2.0
+        left = e4 / (4**order - 1)
         tolerance = 2 * left + 1e-7 * scale
-        error = np.max(np.abs(ours - y4[var]))
+        error = np.max(np.abs(ours[at] - ref))
         assert error <= tolerance, (
             f"{name} {var}: {error:.3g} > {tolerance:.3g} "
             f"(svzerod's error left {left:.3g}, order {order:.2f})"
@@ -81,6 +102,35 @@ def test_junction_case_has_the_stated_analytic_solution():
     np.testing.assert_allclose(v["pressure:INFLOW:branch0_seg0"], 1100.0, rtol=1e-12)
 
 
+def test_variants_in_one_call_equal_each_solved_alone():
+    """``simulate(variants=...)`` solves a batch of parameter values in one vectorised call:
+    each variant equals its own solve, to the preset's tolerance (rtol 1e-6, "default")."""
+    import dataclasses
+
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    model = network.read(CASES / "pulsatileFlow_R_RCR.json")
+    rcr = next(i for i, b in enumerate(model.network.blocks) if b.kind == "RCR")
+
+    def with_distal_resistance(rd):
+        return eqx.tree_at(lambda n: n.blocks[rcr].Rd.values, model.network, rd[None])
+
+    rds = jnp.asarray([500.0, 1000.0, 2000.0])
+    batch = network.simulate(model, variants=jax.vmap(with_distal_resistance)(rds))
+    assert batch.solved
+    for i, rd in enumerate(rds):
+        alone = network.simulate(dataclasses.replace(model, network=with_distal_resistance(rd)))
+        for name, values in alone.values.items():
+            np.testing.assert_allclose(batch.values[name][i], values, rtol=1e-6, atol=1e-9)
+    # each variant is its own: over a periodic beat the capacitor's flow averages out, so the
+    # outlet's mean pressure is the mean inflow 2.2 times Rp + Rd (the case outputs all its 10
+    # beats; the last beat's 200 samples, its repeated end left out)
+    outlet = batch.values["pressure:branch0_seg0:OUT"][:, -201:-1].mean(axis=1)
+    np.testing.assert_allclose(outlet, 2.2 * (1000.0 + rds), rtol=1e-5)
+
+
 def test_pinned_state_is_reduced_and_its_constraint_holds():
     """In steadyFlow_RL_R the inductor's flow is the source's: the network finds that one
     constraint (an index-2 DAE) and differentiates it, so the inlet pressure is determined.
@@ -93,19 +143,31 @@ def test_pinned_state_is_reduced_and_its_constraint_holds():
     np.testing.assert_allclose(v["pressure:INFLOW:branch0_seg0"], 1100.0, rtol=1e-12)
 
 
-def test_unsupported_block_is_refused_in_one_line_naming_it():
-    with pytest.raises(network.UnsupportedModel, match="'ValveTanh'") as error:
-        network.read(CASES / "valve_tanh.json")
-    assert "\n" not in str(error.value)
-
-
-def test_period_that_disagrees_with_the_tables_is_refused_as_svzerod_does():
+@pytest.mark.parametrize(
+    "name", ["pulsatileFlow_R_RCR_mismatchPeriod", "closedLoopHeart_singleVessel_mistmatchPeriod"]
+)
+def test_period_that_disagrees_is_refused_as_svzerod_does(name):
     with pytest.raises(network.UnsupportedModel, match="inconsistent cardiac cycle period"):
-        network.read(CASES / "pulsatileFlow_R_RCR_mismatchPeriod.json")
+        network.read(CASES / f"{name}.json")
     with pytest.raises(Exception, match="Inconsistent cardiac cycle period"):
-        svzerod.simulate(
-            json.loads((CASES / "pulsatileFlow_R_RCR_mismatchPeriod.json").read_text())
-        )
+        svzerod.simulate(json.loads((CASES / f"{name}.json").read_text()))
+
+
+def test_crl_vessel_has_its_closed_form():
+    """pulsatileFlow_CRL: the upstream case's closed form, inlet pressure 0.5 sin t and outlet
+    flow cos 2t through C = 1, R = 1: outlet pressure 0.5 sin t - cos 2t, inflow
+    cos 2t + 0.5 cos t. Both tables are sampled every h = 2 pi / 300: linear interpolation
+    leaves h^2/8 max|f''| (5e-5 x 4 on the outlet pressure); the inflow holds the table's
+    one-sided slope at each sample, off the derivative by up to h/2 max|P''| = 5.3e-3."""
+    v = network.simulate(network.read(CASES / "pulsatileFlow_CRL.json")).values
+    t = np.linspace(0.0, 6.283185306, 300)
+    h = 6.283185306 / 300
+    np.testing.assert_allclose(
+        v["pressure:branch0_seg0:OUT"], 0.5 * np.sin(t) - np.cos(2 * t), atol=h**2 / 8 * 4.5
+    )
+    np.testing.assert_allclose(
+        v["flow:IN:branch0_seg0"], np.cos(2 * t) + 0.5 * np.cos(t), atol=h / 2 * 0.5 + h**2 / 8 * 4
+    )
 
 
 def test_unknown_parameter_is_refused_naming_block_and_parameter():
@@ -139,12 +201,20 @@ def test_simulate_command_writes_traces_under_svzerod_names(tmp_path):
 
 @pytest.mark.parametrize(
     "extra, message",
-    [((), "'ValveTanh'"), (("--bpm", "60"), "--bpm does not apply")],
+    [((), "'CORONARY'"), (("--bpm", "60"), "--bpm does not apply")],
 )
-def test_simulate_command_refuses_in_one_line(capsys, extra, message):
+def test_simulate_command_refuses_in_one_line(capsys, tmp_path, extra, message):
     from cardiosoft.simulate import main
 
-    case = CASES / ("valve_tanh.json" if not extra else "steadyFlow_R_R.json")
+    config = json.loads((CASES / "steadyFlow_R_R.json").read_text())
+    if not extra:  # an outlet the reader does not take
+        config["boundary_conditions"][1] = {
+            "bc_name": "OUT",
+            "bc_type": "CORONARY",
+            "bc_values": {"Ca": 1.0, "Cc": 1.0, "Pim": 0.0, "P_v": 0.0, "Ra1": 1.0, "Ra2": 1.0},
+        }
+    case = tmp_path / "case.json"
+    case.write_text(json.dumps(config))
     assert main(["--scene", str(case), *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1

@@ -151,6 +151,50 @@ class BloodVessel(Block):
         return [p_c] * self.has_C + [values["Q"][1]] * self.has_L
 
 
+class BloodVesselCRL(Block):
+    """svZeroDSolver's ``BloodVesselCRL``: a capacitor C at the inlet, then R (with a stenosis
+    S|Q_out|) and L in series. States: the inlet pressure when C > 0, the outlet flow when L > 0.
+
+    Equations (``BloodVesselCRL.cpp``): ``Q_in - Q_out - C dP_in/dt = 0`` and
+    ``P_in - (R + S|Q_out|) Q_out - P_out - L dQ_out/dt = 0``.
+    """
+
+    R: jnp.ndarray
+    C: jnp.ndarray
+    L: jnp.ndarray
+    S: jnp.ndarray
+    has_C: bool = eqx.field(static=True)
+    has_L: bool = eqx.field(static=True)
+    nonlinear: bool = eqx.field(static=True)
+    kind = "BloodVesselCRL"
+
+    @property
+    def n_states(self):
+        return int(self.has_C) + int(self.has_L)
+
+    def state_kinds(self):
+        return ("pressure",) * self.has_C + ("flow",) * self.has_L
+
+    def _drop(self, P, Q):
+        return P[0] - _stenosis_drop(self.R, self.S, Q[1]) - P[1]
+
+    def residuals(self, t, x, P, Q, steady=False):
+        first = P[0] - x[0] if self.has_C else Q[0] - Q[1]
+        second = Q[1] - x[-1] if self.has_L else self._drop(P, Q)
+        return jnp.stack([first, second])
+
+    def rates(self, t, x, P, Q, steady=False):
+        out = []
+        if self.has_C:
+            out.append((Q[0] - Q[1]) / self.C)
+        if self.has_L:
+            out.append(self._drop(P, Q) / self.L)
+        return jnp.stack(out) if out else _none(P)
+
+    def states_from(self, values):
+        return [values["P"][0]] * self.has_C + [values["Q"][1]] * self.has_L
+
+
 class FlowSource(Block):
     """svZeroDSolver's ``FLOW`` boundary condition: the node's flow is ``Q(t)``."""
 
@@ -215,6 +259,59 @@ class RCR(Block):
 
     def outputs(self, t, x, P, Q):
         return {f"pressure_c:{self.name}": x[0]}
+
+
+class ClosedLoopRCR(Block):
+    """svZeroDSolver's ``ClosedLoopRCR`` (``ClosedLoopRCRBC.cpp``): Rp, a capacitor C to ground
+    (state ``P_c:NAME``), then Rd to its outlet node. Ports: inlet, outlet."""
+
+    Rp: jnp.ndarray
+    C: jnp.ndarray
+    Rd: jnp.ndarray
+    kind = "ClosedLoopRCR"
+    n_states = 1
+
+    def state_kinds(self):
+        return ("pressure",)
+
+    def internal_names(self):
+        return (f"P_c:{self.name}",)
+
+    def residuals(self, t, x, P, Q, steady=False):
+        return jnp.stack([P[0] - self.Rp * Q[0] - x[0], x[0] - P[1] - self.Rd * Q[1]])
+
+    def rates(self, t, x, P, Q, steady=False):
+        return jnp.stack([(Q[0] - Q[1]) / self.C])
+
+    def states_from(self, values):
+        return [values[f"P_c:{self.name}"]]
+
+    def outputs(self, t, x, P, Q):
+        return {f"P_c:{self.name}": x[0]}
+
+
+class ValveTanh(Block):
+    """svZeroDSolver's ``ValveTanh``: a resistance that moves from ``Rmin`` (open) to ``Rmax``
+    (closed) along ``tanh(steepness (P_out - P_in))``. Ports: inlet, outlet. Its internal
+    variable ``valve_status:NAME`` is ``(1 + tanh(steepness (P_out - P_in))) / 2``, as upstream."""
+
+    Rmax: jnp.ndarray
+    Rmin: jnp.ndarray
+    steepness: jnp.ndarray
+    kind = "ValveTanh"
+    nonlinear = True
+
+    def internal_names(self):
+        return (f"valve_status:{self.name}",)
+
+    def residuals(self, t, x, P, Q, steady=False):
+        closing = jnp.tanh(self.steepness * (P[1] - P[0]))
+        R = 0.5 * (self.Rmax + self.Rmin) + 0.5 * (self.Rmax - self.Rmin) * closing
+        return jnp.stack([P[0] - P[1] - R * Q[0], Q[0] - Q[1]])
+
+    def outputs(self, t, x, P, Q):
+        status = 0.5 * (1.0 + jnp.tanh(self.steepness * (P[1] - P[0])))
+        return {f"valve_status:{self.name}": status}
 
 
 class Junction(Block):

@@ -13,9 +13,11 @@ states here). The field solves them for ``z`` at each evaluation and returns the
   checks, at its output times, that one more step would move ``z`` by less than
   ``NEWTON_TOLERANCE`` relative (:meth:`Network.newton_converged`).
 
-The algebraic part must be uniquely solvable for ``z`` given ``x`` (an index-1 DAE). A model where
-it is not (an inductor in series with a flow source: a flow that is both a state and prescribed)
-is refused when the network is built, by the rank of that Jacobian.
+The algebraic part must be uniquely solvable for ``z`` given ``x`` (an index-1 DAE). Where a
+source pins a state (a capacitor on a pressure source, an inductor in series with a flow source:
+index 2), :func:`reduce_index` differentiates that constraint once when the network is built;
+a model still singular after that is refused. Parameters are array leaves, so a batch of
+networks that differ only in their values is one ``vmap`` of the same compiled field.
 """
 
 from __future__ import annotations

@@ -33,6 +33,9 @@ class Traces:
       Newton converged (None when the model starts from its initial condition);
     - ``steps``: the integrator's accepted steps, ``stiff``: whether the implicit solver was
       needed (the explicit one ran out of steps).
+
+    A batch of variants (:func:`simulate`'s ``variants``) puts the variants' axis first in every
+    ``values`` array; the flags hold for all of them and ``steps`` is the most any took.
     """
 
     time: np.ndarray
@@ -89,48 +92,76 @@ def _jump_times(net, t_end):
     return jnp.asarray(knots[(knots > 0) & (knots < t_end)])
 
 
-def simulate(model: Model, accuracy: str = "default") -> Traces:
+def simulate(model: Model, accuracy: str = "default", *, rtol=None, variants=None) -> Traces:
     """Run ``model`` for its number of beats and return its variables at svZeroDSolver's output
-    times. ``accuracy`` names a solver preset (``cardiosoft.solve.PRESETS``)."""
+    times.
+
+    - ``accuracy``: a solver preset (``cardiosoft.solve.PRESETS``); ``rtol`` overrides its
+      relative tolerance (the absolute ones follow it, see ``_tolerances``).
+    - ``variants``: ``model.network`` with a leading batch axis on its parameters (built, say,
+      by ``jax.vmap`` over ``eqx.tree_at``): all of them are solved in one compiled, vectorised
+      call. Every array of the result then has that axis first; ``solved`` and
+      ``steady_start`` hold for all variants (each is the worst of them).
+    """
     if accuracy not in PRESETS:
         raise ValueError(f"accuracy {accuracy!r} is not one of {', '.join(PRESETS)}")
-    net, sim = model.network, model.simulation
+    sim = model.simulation
+    net = model.network if variants is None else variants
+
+    def each(f, *axes):  # f over the variants, or f itself for one network
+        return f if variants is None else eqx.filter_vmap(f, in_axes=axes)
+
     x0 = model.initial_states()
     steady_start = None
     if sim.steady_initial:
-        x0, ok = net.steady_state(x0)
-        steady_start = bool(ok)
-    x0 = net.consistent(0.0, x0)
-    dt = net.period / sim.steps_per_cycle
+        x0, ok = each(_steady_state, 0, None)(net, x0)
+        steady_start = bool(jnp.all(ok))
+    x0 = each(_consistent, 0, 0 if sim.steady_initial else None)(net, x0)
+    dt = model.network.period / sim.steps_per_cycle
     t_all = dt * np.arange(sim.steps_per_cycle * sim.cycles + 1)
     ts = t_all if sim.output_all_cycles else t_all[-sim.points_per_cycle :]
     ts = jnp.asarray(ts)
-    if net.n_states == 0:
-        zs, internal, converged = _read_out(net, ts, jnp.zeros((ts.shape[0], 0)))
+    if model.network.n_states == 0:
+        zs, internal, converged = each(_read_out, 0, None, 0)(net, ts, jnp.zeros((ts.shape[0], 0)))
         steps, stiff, solved = 0, False, True
     else:
-        rtol = PRESETS[accuracy]["rtol"]
-        atol = _tolerances(net, x0, net.node_values(0.0, x0), rtol)
-        jumps = _jump_times(net, t_all[-1])
+        rtol = PRESETS[accuracy]["rtol"] if rtol is None else rtol
+        first = model.network
+        x_start = model.initial_states()
+        atol = _tolerances(first, x_start, _start_nodes(first, x_start), rtol)
+        jumps = _jump_times(first, t_all[-1])
         for stiff in (False, True):
             base = preset(accuracy, stiff=stiff)
             config = SolverConfig(base.solver, rtol, atol, base.pcoeff, base.icoeff, base.max_steps)
-            zs, internal, converged, result, steps = _run(
+            zs, internal, converged, result, steps = each(_run, 0, 0, None, None, None, None)(
                 net, x0, float(t_all[-1]), ts, jumps, config
             )
-            solved = bool(result == diffrax.RESULTS.successful)
+            solved = bool(jnp.all(result == diffrax.RESULTS.successful))
             if solved:
                 break
-        steps = int(steps)
-    solved = solved and bool(converged)
+        steps = int(jnp.max(steps))
+    solved = solved and bool(jnp.all(converged))
     values = {}
-    n = net.n_nodes
-    for i, (up, down) in enumerate(net.nodes):
-        values[f"pressure:{up}:{down}"] = np.asarray(zs[:, i])
-        values[f"flow:{up}:{down}"] = np.asarray(zs[:, n + i])
+    n = model.network.n_nodes
+    for i, (up, down) in enumerate(model.network.nodes):
+        values[f"pressure:{up}:{down}"] = np.asarray(zs[..., i])
+        values[f"flow:{up}:{down}"] = np.asarray(zs[..., n + i])
     values.update({k: np.asarray(v) for k, v in internal.items()})
     time = ts if sim.output_all_cycles else ts - ts[0]
     return Traces(np.asarray(time), values, solved, steady_start, steps, stiff)
+
+
+@eqx.filter_jit
+def _start_nodes(net, x0):
+    return net.node_values(0.0, x0)
+
+
+def _steady_state(net, x0):
+    return net.steady_state(x0)
+
+
+def _consistent(net, x0):
+    return net.consistent(0.0, x0)
 
 
 @eqx.filter_jit

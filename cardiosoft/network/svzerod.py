@@ -29,23 +29,31 @@ import jax.numpy as jnp
 from cardiosoft.network.blocks import (
     RCR,
     BloodVessel,
+    BloodVesselCRL,
+    ClosedLoopRCR,
     FlowSource,
     Junction,
     PressureSource,
     Resistance,
     TimeTable,
+    ValveTanh,
     VesselJunction,
 )
+from cardiosoft.network.heart_blocks import HEART_PARAMETERS, ClosedLoopHeart
 from cardiosoft.network.network import Network, reduce_index
 
 SUPPORTED_BLOCKS = (
     "BloodVessel",
+    "BloodVesselCRL",
     "FLOW",
     "PRESSURE",
     "RESISTANCE",
     "RCR",
+    "ClosedLoopRCR",
     "NORMAL_JUNCTION",
     "BloodVesselJunction",
+    "ValveTanh",
+    "ClosedLoopHeartAndPulmonary",
 )
 """svZeroDSolver block types the reader takes."""
 
@@ -133,19 +141,6 @@ def _values(params: dict, where: str, required: tuple, optional: tuple = (), tab
     return out
 
 
-class _Builder:
-    """Collects connections and blocks in svZeroDSolver's order."""
-
-    def __init__(self):
-        self.connections: list[tuple[str, str]] = []
-        self.specs: list[tuple[str, str, dict]] = []  # (name, type, parameters)
-
-    def ports(self, name):
-        inlets = [i for i, (_, down) in enumerate(self.connections) if down == name]
-        outlets = [i for i, (up, _) in enumerate(self.connections) if up == name]
-        return inlets, outlets
-
-
 def _table_period(tables) -> float | None:
     periods = {float(t.period) for t in tables if t.values.shape[0] > 1}
     if len(periods) > 1:
@@ -154,6 +149,83 @@ def _table_period(tables) -> float | None:
             + ", ".join(f"{p:g}" for p in sorted(periods))
         )
     return periods.pop() if periods else None
+
+
+def _vessel(cls, name, p, ports):
+    """A two-element vessel (``BloodVessel``, ``BloodVesselCRL``): one inlet, one outlet."""
+    ins, outs = ports
+    if len(ins) != 1 or len(outs) != 1:
+        raise UnsupportedModel(
+            f"{cls.kind} {name}: needs one inlet and one outlet connection, "
+            f"has {len(ins)} and {len(outs)}"
+        )
+    R, C, L, S = (float(p[k]) for k in ("R_poiseuille", "C", "L", "stenosis_coefficient"))
+    arrays = (jnp.asarray(v) for v in (R, C, L, S))
+    return cls(name, (ins[0], outs[0]), *arrays, C != 0, L != 0, S != 0)
+
+
+def _vessel_junction(name, p, ports):
+    ins, outs = ports
+    if len(ins) != 1:
+        raise UnsupportedModel(f"BloodVesselJunction {name}: one inlet, not {len(ins)}")
+    R, L, S = (
+        jnp.asarray(p[k], dtype=float) for k in ("R_poiseuille", "L", "stenosis_coefficient")
+    )
+    if not R.shape == L.shape == S.shape == (len(outs),):
+        raise UnsupportedModel(
+            f"BloodVesselJunction {name}: one value per outlet in R_poiseuille, L "
+            "and stenosis_coefficient"
+        )
+    has_L = tuple(bool(v != 0) for v in L)
+    return VesselJunction(name, (*ins, *outs), R, L, S, has_L, bool(jnp.any(S != 0)))
+
+
+def _one_port(cls, name, kwargs, ports):
+    """A boundary condition: connected to exactly one block."""
+    nodes = (*ports[0], *ports[1])
+    if len(nodes) != 1:
+        raise UnsupportedModel(f"{cls.kind} {name}: connected to {len(nodes)} blocks, not 1")
+    return cls(name, nodes, **kwargs)
+
+
+def _two_ports(cls, name, kwargs, ports):
+    """A block between one inlet and one outlet node."""
+    ins, outs = ports
+    if len(ins) != 1 or len(outs) != 1:
+        raise UnsupportedModel(f"{cls.kind} {name}: needs one inlet and one outlet connection")
+    return cls(name, (ins[0], outs[0]), **kwargs)
+
+
+def _arrays(p: dict, keys) -> dict:
+    return {k: jnp.asarray(p[k], dtype=float) for k in keys}
+
+
+def _boundary_condition(bc: dict):
+    """(name, factory of the block from its ports, its time tables, whether it feeds the heart)."""
+    name, kind, params = bc["bc_name"], bc["bc_type"], bc.get("bc_values", {})
+    where = f"{kind} {name}"
+    if kind == "FLOW":
+        kwargs, cls = _values(params, where, ("Q",), tables=("Q",)), FlowSource
+    elif kind == "PRESSURE":
+        kwargs, cls = _values(params, where, ("P",), tables=("P",)), PressureSource
+    elif kind == "RESISTANCE":
+        kwargs, cls = _values(params, where, ("R", "Pd"), tables=("R", "Pd")), Resistance
+    elif kind == "RCR":
+        kwargs = _values(params, where, ("Rp", "C", "Rd"), ("Pd",), ("Rp", "C", "Rd", "Pd"))
+        cls = RCR
+    elif kind == "ClosedLoopRCR":
+        p = _values(params, where, ("Rp", "C", "Rd", "closed_loop_outlet"))
+        kwargs = _arrays(p, ("Rp", "C", "Rd"))
+        return (
+            name,
+            (lambda ports: _two_ports(ClosedLoopRCR, name, kwargs, ports)),
+            [],
+            bool(p["closed_loop_outlet"]),
+        )
+    else:
+        raise UnsupportedModel(f"block type {kind!r} (boundary condition {name}) is not supported")
+    tables = [v for v in kwargs.values() if isinstance(v, TimeTable)]
+    return name, (lambda ports: _one_port(cls, name, kwargs, ports)), tables, False
 
 
 def read(source, name: str | None = None) -> Model:
@@ -167,147 +239,111 @@ def read(source, name: str | None = None) -> Model:
         config = source
     if not isinstance(config, dict) or "simulation_parameters" not in config:
         raise UnsupportedModel("not an svZeroDSolver model: 'simulation_parameters' is missing")
-    for key in ("closed_loop_blocks", "valves", "chambers", "external_solver_coupling_blocks"):
+    for key in ("chambers", "external_solver_coupling_blocks"):
         for entry in config.get(key) or []:
-            kind = entry.get("closed_loop_type") or entry.get("type") or key
-            raise UnsupportedModel(f"block type {kind!r} ({key}) is not supported yet")
-    b = _Builder()
+            raise UnsupportedModel(
+                f"block type {entry.get('type', key)!r} ({key}) is not supported yet"
+            )
+    connections: list[tuple[str, str]] = []
+    factories: dict = {}  # block name -> factory of the block from its (inlet, outlet) nodes
+    period = None
+
+    # svZeroDSolver's order: vessels, boundary conditions, junctions, closed loop, valves
     vessel_names = {}
-    vessels = {}
     for v in config.get("vessels", []):
-        vname = v["vessel_name"]
-        kind = v.get("zero_d_element_type", "BloodVessel")
-        if kind != "BloodVessel":
+        vname, kind = v["vessel_name"], v.get("zero_d_element_type", "BloodVessel")
+        cls = {"BloodVessel": BloodVessel, "BloodVesselCRL": BloodVesselCRL}.get(kind)
+        if cls is None:
             raise UnsupportedModel(f"block type {kind!r} (vessel {vname}) is not supported")
         vessel_names[v["vessel_id"]] = vname
-        vessels[vname] = _values(
+        params = _values(
             v.get("zero_d_element_values", {}),
-            f"BloodVessel {vname}",
+            f"{kind} {vname}",
             ("R_poiseuille",),
             ("C", "L", "stenosis_coefficient"),
         )
-        bcs = v.get("boundary_conditions", {})
-        if "inlet" in bcs:
-            b.connections.append((bcs["inlet"], vname))
-        if "outlet" in bcs:
-            b.connections.append((vname, bcs["outlet"]))
-    bcs = {}
+        factories[vname] = lambda ports, cls=cls, vname=vname, p=params: _vessel(
+            cls, vname, p, ports
+        )
+        ends = v.get("boundary_conditions", {})
+        if "inlet" in ends:
+            connections.append((ends["inlet"], vname))
+        if "outlet" in ends:
+            connections.append((vname, ends["outlet"]))
+    tables, heart_inlets = [], []
     for bc in config["boundary_conditions"]:
-        bname, kind, params = bc["bc_name"], bc["bc_type"], bc.get("bc_values", {})
-        where = f"{kind} {bname}"
-        if kind == "FLOW":
-            bcs[bname] = (FlowSource, _values(params, where, ("Q",), tables=("Q",)))
-        elif kind == "PRESSURE":
-            bcs[bname] = (PressureSource, _values(params, where, ("P",), tables=("P",)))
-        elif kind == "RESISTANCE":
-            bcs[bname] = (Resistance, _values(params, where, ("R", "Pd"), tables=("R", "Pd")))
-        elif kind == "RCR":
-            bcs[bname] = (
-                RCR,
-                _values(params, where, ("Rp", "C", "Rd"), ("Pd",), ("Rp", "C", "Rd", "Pd")),
-            )
-        else:
-            raise UnsupportedModel(
-                f"block type {kind!r} (boundary condition {bname}) is not supported"
-            )
-    junctions = {}
+        bname, factory, bc_tables, feeds_heart = _boundary_condition(bc)
+        factories[bname] = factory
+        tables += bc_tables
+        if feeds_heart:
+            heart_inlets.append(bname)
+    period = _table_period(tables)
     for j in config.get("junctions", []):
         jname, kind = j["junction_name"], j.get("junction_type", "NORMAL_JUNCTION")
-        if kind not in ("NORMAL_JUNCTION", "BloodVesselJunction"):
-            raise UnsupportedModel(f"block type {kind!r} (junction {jname}) is not supported")
         if "inlet_vessels" in j and "outlet_vessels" in j:
             ins = [vessel_names[i] for i in j["inlet_vessels"]]
             outs = [vessel_names[i] for i in j["outlet_vessels"]]
         else:
             ins, outs = j["inlet_blocks"], j["outlet_blocks"]
-        b.connections += [(i, jname) for i in ins] + [(jname, o) for o in outs]
-        if kind == "BloodVesselJunction":
-            if len(ins) != 1:
-                raise UnsupportedModel(f"BloodVesselJunction {jname}: one inlet, not {len(ins)}")
+        connections += [(i, jname) for i in ins] + [(jname, o) for o in outs]
+        if kind == "NORMAL_JUNCTION":
+            factories[jname] = lambda ports, jname=jname: Junction(
+                jname, (*ports[0], *ports[1]), len(ports[0])
+            )
+        elif kind == "BloodVesselJunction":
             params = _values(
                 j.get("junction_values", {}),
                 f"{kind} {jname}",
                 ("R_poiseuille", "L", "stenosis_coefficient"),
             )
-            junctions[jname] = (kind, params)
+            factories[jname] = lambda ports, jname=jname, p=params: _vessel_junction(
+                jname, p, ports
+            )
         else:
-            junctions[jname] = (kind, {})
+            raise UnsupportedModel(f"block type {kind!r} (junction {jname}) is not supported")
+    for block in config.get("closed_loop_blocks") or []:
+        period = _closed_loop(block, period, connections, factories, heart_inlets)
+    for valve in config.get("valves") or []:
+        vname, kind = valve["name"], valve["type"]
+        if kind != "ValveTanh":
+            raise UnsupportedModel(f"block type {kind!r} (valve {vname}) is not supported")
+        p = _values(
+            valve.get("params", {}),
+            f"{kind} {vname}",
+            ("Rmax", "Rmin", "Steepness", "upstream_block", "downstream_block"),
+        )
+        connections += [(p["upstream_block"], vname), (vname, p["downstream_block"])]
+        kwargs = {
+            "Rmax": jnp.asarray(float(p["Rmax"])),
+            "Rmin": jnp.asarray(float(p["Rmin"])),
+            "steepness": jnp.asarray(float(p["Steepness"])),
+        }
+        factories[vname] = lambda ports, vname=vname, kw=kwargs: _two_ports(
+            ValveTanh, vname, kw, ports
+        )
 
-    tables = [t for _, p in bcs.values() for t in p.values()]
-    period = _table_period(tables)
     sim = config["simulation_parameters"]
     given_period = sim.get("cardiac_period")
     if given_period is not None and period is not None and given_period != period:
         raise UnsupportedModel(
             f"inconsistent cardiac cycle period: {given_period:g} in simulation_parameters, "
-            f"{period:g} in the time tables"
+            f"{period:g} in the model's blocks"
         )
     period = period or given_period or 1.0
-    for option in UNSUPPORTED_OPTIONS:
-        if sim.get(option):
-            raise UnsupportedModel(f"simulation option {option!r} is not supported")
-    if sim.get("output_interval", 1) != 1:
-        raise UnsupportedModel("simulation option 'output_interval' other than 1 is not supported")
-    simulation = Simulation(
-        cycles=int(sim["number_of_cardiac_cycles"]),
-        points_per_cycle=int(sim["number_of_time_pts_per_cardiac_cycle"]),
-        steady_initial=bool(sim.get("steady_initial", True)),
-        output_all_cycles=bool(sim.get("output_all_cycles", False)),
-    )
-
-    blocks = []
-    for vname, p in vessels.items():
-        ins, outs = b.ports(vname)
-        if len(ins) != 1 or len(outs) != 1:
-            raise UnsupportedModel(
-                f"BloodVessel {vname}: needs one inlet and one outlet connection, "
-                f"has {len(ins)} and {len(outs)}"
-            )
-        R, C, L, S = (float(p[k]) for k in ("R_poiseuille", "C", "L", "stenosis_coefficient"))
-        blocks.append(
-            BloodVessel(
-                vname,
-                (ins[0], outs[0]),
-                jnp.asarray(R),
-                jnp.asarray(C),
-                jnp.asarray(L),
-                jnp.asarray(S),
-                C != 0,
-                L != 0,
-                S != 0,
-            )
+    simulation = _simulation(sim)
+    named = {x for c in connections for x in c}
+    if named - set(factories):
+        raise UnsupportedModel(
+            f"connection to an unknown block {sorted(named - set(factories))[0]!r}"
         )
-    for bname, (cls, p) in bcs.items():
-        ins, outs = b.ports(bname)
-        if len(ins) + len(outs) != 1:
-            raise UnsupportedModel(
-                f"boundary condition {bname}: connected to {len(ins) + len(outs)} blocks, not 1"
-            )
-        blocks.append(cls(bname, tuple(ins + outs), **p))
-    for jname, (kind, p) in junctions.items():
-        ins, outs = b.ports(jname)
-        if kind == "NORMAL_JUNCTION":
-            blocks.append(Junction(jname, tuple(ins + outs), len(ins)))
-        else:
-            R, L, S = (
-                jnp.asarray(p[k], dtype=float)
-                for k in ("R_poiseuille", "L", "stenosis_coefficient")
-            )
-            if not R.shape == L.shape == S.shape == (len(outs),):
-                raise UnsupportedModel(
-                    f"BloodVesselJunction {jname}: one value per outlet in R_poiseuille, L "
-                    "and stenosis_coefficient"
-                )
-            has_L = tuple(bool(v != 0) for v in L)
-            blocks.append(
-                VesselJunction(jname, tuple(ins + outs), R, L, S, has_L, bool(jnp.any(S != 0)))
-            )
-    named = {x for c in b.connections for x in c}
-    known = set(vessels) | set(bcs) | set(junctions)
-    if named - known:
-        raise UnsupportedModel(f"connection to an unknown block {sorted(named - known)[0]!r}")
 
-    network = Network(tuple(blocks), tuple(b.connections), float(period))
+    def ports(name):
+        inlets = tuple(i for i, (_, down) in enumerate(connections) if down == name)
+        outlets = tuple(i for i, (up, _) in enumerate(connections) if up == name)
+        return inlets, outlets
+
+    blocks = [make(ports(block_name)) for block_name, make in factories.items()]
+    network = Network(tuple(blocks), tuple(connections), float(period))
     model = Model(network, simulation, {}, name or "model")
     model = Model(
         network,
@@ -320,6 +356,52 @@ def read(source, name: str | None = None) -> Model:
     except ValueError as error:
         raise UnsupportedModel(f"{model.name}: {error}") from None
     return Model(network, simulation, model.initial, model.name)
+
+
+def _simulation(sim: dict) -> Simulation:
+    for option in UNSUPPORTED_OPTIONS:
+        if sim.get(option):
+            raise UnsupportedModel(f"simulation option {option!r} is not supported")
+    if sim.get("output_interval", 1) != 1:
+        raise UnsupportedModel("simulation option 'output_interval' other than 1 is not supported")
+    return Simulation(
+        cycles=int(sim["number_of_cardiac_cycles"]),
+        points_per_cycle=int(sim["number_of_time_pts_per_cardiac_cycle"]),
+        steady_initial=bool(sim.get("steady_initial", True)),
+        output_all_cycles=bool(sim.get("output_all_cycles", False)),
+    )
+
+
+def _closed_loop(block: dict, period, connections, factories, heart_inlets):
+    """svZeroDSolver's ``create_closed_loop``: the heart ``CLH`` between the junctions
+    ``J_heart_inlet`` (fed by the closed-loop boundary conditions) and ``J_heart_outlet``.
+    Returns the period, which the heart sets."""
+    kind = block.get("closed_loop_type")
+    if kind != "ClosedLoopHeartAndPulmonary":
+        raise UnsupportedModel(f"block type {kind!r} (closed_loop_blocks) is not supported")
+    if "CLH" in factories:
+        raise UnsupportedModel("only one ClosedLoopHeartAndPulmonary can be included")
+    heart_period = float(block["cardiac_cycle_period"])
+    if period is not None and heart_period != period:
+        raise UnsupportedModel(
+            f"inconsistent cardiac cycle period: {heart_period:g} in "
+            f"ClosedLoopHeartAndPulmonary, {period:g} in the time tables"
+        )
+    p = _arrays(
+        _values(block.get("parameters", {}), f"{kind} CLH", HEART_PARAMETERS), HEART_PARAMETERS
+    )
+    connections.append(("J_heart_inlet", "CLH"))
+    connections += [(bc, "J_heart_inlet") for bc in heart_inlets]
+    connections.append(("CLH", "J_heart_outlet"))
+    connections += [("J_heart_outlet", out) for out in block["outlet_blocks"]]
+    factories["CLH"] = lambda ports: _two_ports(
+        ClosedLoopHeart, "CLH", {"p": p, "period": heart_period}, ports
+    )
+    for junction in ("J_heart_inlet", "J_heart_outlet"):
+        factories[junction] = lambda ports, junction=junction: Junction(
+            junction, (*ports[0], *ports[1]), len(ports[0])
+        )
+    return heart_period
 
 
 def _initial(given: dict, names: list[str]) -> dict:

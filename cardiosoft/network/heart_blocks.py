@@ -1,0 +1,169 @@
+"""svZeroDSolver's heart blocks, in the semi-explicit form of :mod:`cardiosoft.network.blocks`.
+
+The elastances and activations follow ``ClosedLoopHeartPulmonary.cpp`` and
+``ActivationFunction.cpp`` of ``SimVascular/svZeroDSolver`` (time folded with
+``fmod(t, period)``).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from cardiosoft.network.blocks import Block
+
+FOURIER_ELASTANCE = (
+    (0.283748803, 0.000000000),
+    (0.031830626, -0.374299825),
+    (-0.209472400, -0.018127770),
+    (0.020520047, 0.073971113),
+    (0.008316883, -0.047249597),
+    (-0.041677660, 0.003212163),
+    (0.000867323, 0.019441411),
+    (-0.001675379, -0.005565534),
+    (-0.011252277, 0.003401432),
+    (-0.000414677, 0.008376795),
+    (0.000253749, -0.000071880),
+    (-0.002584966, 0.001566861),
+    (0.000584752, 0.003143555),
+    (0.000028502, -0.000024787),
+    (0.000022961, -0.000007476),
+    (0.000018735, -0.000001281),
+    (0.000015573, 0.000001781),
+    (0.000013133, 0.000003494),
+    (0.000011199, 0.000004507),
+    (0.000009634, 0.000005117),
+    (0.000008343, 0.000005481),
+    (0.000007265, 0.000005687),
+    (0.000006354, 0.000005789),
+    (0.000005575, 0.000005821),
+    (0.000004903, 0.000005805),
+)
+"""svZeroDSolver's 25 Fourier modes (cos, sin) of the normalised ventricular elastance."""
+
+
+def fourier_elastance(t_in_cycle, period):
+    """The normalised ventricular elastance (unscaled, as upstream's ``Elv_i``)."""
+    modes = np.asarray(FOURIER_ELASTANCE)
+    k = jnp.arange(modes.shape[0])
+    phase = 2.0 * jnp.pi * k * t_in_cycle / period
+    return jnp.sum(modes[:, 0] * jnp.cos(phase) - modes[:, 1] * jnp.sin(phase))
+
+
+def wrapping_cosine(t_in_cycle, period, Tsa, tpwave):
+    """The atrial activation (upstream's ``AA``): a raised cosine of length ``Tsa`` periods that
+    ends ``1/tpwave`` of a period into the beat, wrapping around the beat's start."""
+    length, end = period * Tsa, period / tpwave
+    first = 0.5 * (1.0 - jnp.cos(2.0 * jnp.pi * (t_in_cycle - end + length) / length))
+    wrapped = 0.5 * (1.0 - jnp.cos(2.0 * jnp.pi * (t_in_cycle - end - (period - length)) / length))
+    return jnp.where(
+        t_in_cycle <= end,
+        first,
+        jnp.where((t_in_cycle >= period - length + end) & (t_in_cycle < period), wrapped, 0.0),
+    )
+
+
+HEART_PARAMETERS = (
+    "Tsa", "tpwave", "Erv_s", "Elv_s", "iml", "imr", "Lrv_a", "Rrv_a", "Lra_v", "Rra_v",
+    "Lla_v", "Rla_v", "Rlv_ao", "Llv_a", "Vrv_u", "Vlv_u", "Rpd", "Cp", "Cpa", "Kxp_ra",
+    "Kxv_ra", "Emax_ra", "Vaso_ra", "Kxp_la", "Kxv_la", "Emax_la", "Vaso_la",
+)  # fmt: skip
+"""``ClosedLoopHeartAndPulmonary``'s parameters (all required, as upstream; ``iml`` and
+``imr`` are read only by the closed-loop coronary blocks)."""
+
+_STATES = ("V_RA", "Q_RA", "V_RV", "Q_RV", "P_pul", "V_LA", "Q_LA", "V_LV", "Q_LV")
+_VALVES = ("Q_RA", "Q_RV", "Q_LA", "Q_LV")
+
+
+class ClosedLoopHeart(Block):
+    """svZeroDSolver's ``ClosedLoopHeartAndPulmonary``: four chambers, four valves and the
+    pulmonary circulation, between the inlet node (right atrium) and the outlet node (aorta,
+    a capacitor ``Cpa`` to ground). Ports: inlet, outlet.
+
+    States: the chambers' volumes, the four valves' inductor flows, the pulmonary pressure and
+    the aortic pressure. The atria follow an exponential passive law blended with an active
+    elastance by the activation ``AA``; the ventricles a Fourier elastance. Each valve is
+    upstream's hard switch: closed while its upstream pressure is at most its downstream one
+    and its flow is at most zero; a closed valve's flow holds and counts as zero (upstream
+    sets it to zero after each step). As upstream, the left atrium fills with the right
+    ventricle's outflow, not the pulmonary flow: blood volume is conserved only over a beat.
+    """
+
+    p: dict
+    period: float = eqx.field(static=True)
+    kind = "ClosedLoopHeartAndPulmonary"
+    n_states = len(_STATES) + 1
+
+    def state_kinds(self):
+        kinds = {"V": "volume", "Q": "flow", "P": "pressure"}
+        return (*(kinds[s[0]] for s in _STATES), "pressure")
+
+    def internal_names(self):
+        names = ("V_RA", "Q_RA", "P_RV", "V_RV", "Q_RV", "P_pul", "P_LA", "V_LA", "Q_LA")
+        return tuple(f"{n}:{self.name}" for n in (*names, "P_LV", "V_LV", "Q_LV"))
+
+    def _chambers(self, t, x, P):
+        """Every pressure and each valve's open flag (1.0 or 0.0) at ``(t, x)``."""
+        p = self.p
+        s = dict(zip(_STATES, x, strict=False))
+        tau = jnp.fmod(t, self.period)
+        active = wrapping_cosine(tau, self.period, p["Tsa"], p["tpwave"])
+        elastance = fourier_elastance(tau, self.period)
+
+        def atrium(V, side):
+            passive = p[f"Kxp_{side}"] * (jnp.exp((V - p[f"Vaso_{side}"]) * p[f"Kxv_{side}"]) - 1.0)
+            return active * p[f"Emax_{side}"] * (V - p[f"Vaso_{side}"]) + (1.0 - active) * passive
+
+        pressure = {
+            "RA": atrium(s["V_RA"], "ra"),
+            "RV": elastance * p["Erv_s"] * (s["V_RV"] - p["Vrv_u"]),
+            "pul": s["P_pul"],
+            "LA": atrium(s["V_LA"], "la"),
+            "LV": elastance * p["Elv_s"] * (s["V_LV"] - p["Vlv_u"]),
+            "ao": x[-1],
+        }
+        chain = (("RA", "RV"), ("RV", "pul"), ("LA", "LV"), ("LV", "ao"))
+        is_open = {
+            q: jnp.where((pressure[a] <= pressure[b]) & (s[q] <= 0.0), 0.0, 1.0)
+            for q, (a, b) in zip(_VALVES, chain, strict=True)
+        }
+        return s, pressure, is_open
+
+    def residuals(self, t, x, P, Q, steady=False):
+        _, pressure, _ = self._chambers(t, x, P)
+        return jnp.stack([P[0] - pressure["RA"], P[1] - pressure["ao"]])
+
+    def rates(self, t, x, P, Q, steady=False):
+        p = self.p
+        s, pr, v = self._chambers(t, x, P)
+        flow = {q: v[q] * s[q] for q in _VALVES}
+
+        def inductor(q, up, down, R, L):
+            return v[q] * (pr[up] - pr[down] - p[R] * s[q]) / p[L]
+
+        return jnp.stack(
+            [
+                Q[0] - flow["Q_RA"],
+                inductor("Q_RA", "RA", "RV", "Rra_v", "Lra_v"),
+                flow["Q_RA"] - flow["Q_RV"],
+                inductor("Q_RV", "RV", "pul", "Rrv_a", "Lrv_a"),
+                (flow["Q_RV"] - (pr["pul"] - pr["LA"]) / p["Rpd"]) / p["Cp"],
+                flow["Q_RV"] - flow["Q_LA"],  # upstream's: the RV's outflow fills the LA
+                inductor("Q_LA", "LA", "LV", "Rla_v", "Lla_v"),
+                flow["Q_LA"] - flow["Q_LV"],
+                inductor("Q_LV", "LV", "ao", "Rlv_ao", "Llv_a"),
+                (flow["Q_LV"] - Q[1]) / p["Cpa"],
+            ]
+        )
+
+    def states_from(self, values):
+        n = self.name
+        return [values[f"{s}:{n}"] for s in _STATES] + [values["P"][1]]
+
+    def outputs(self, t, x, P, Q):
+        s, pr, v = self._chambers(t, x, P)
+        out = {f"{k}:{self.name}": s[k] for k in ("V_RA", "V_RV", "P_pul", "V_LA", "V_LV")}
+        out.update({f"{q}:{self.name}": v[q] * s[q] for q in _VALVES})
+        out.update({f"P_{c}:{self.name}": pr[c] for c in ("RV", "LA", "LV")})
+        return out
