@@ -53,6 +53,7 @@ __all__ = [
     "loop_members",
     "loop_metrics",
     "solve_loop",
+    "stiff_loop_config",
 ]
 
 LOOP_SAMPLES = 401
@@ -278,7 +279,8 @@ def solve_loop(
       volume held; :func:`cardiosoft.shooting.shoot_periodic`).
     - ``pump``: the surrogate of the pump chambers (default the shipped one).
     - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default the scene's accuracy
-      preset with Tsit5 in forward mode (:func:`loop_config`).
+      preset with Tsit5 in forward mode (:func:`loop_config`), and for the members that run
+      out of its steps the implicit Kvaerno5 (:func:`stiff_loop_config`), solved again.
     - ``guess_beats``: with ``steady="shooting"``, the beats from the scene's initial state
       before Newton starts (default :data:`~cardiosoft.beat_solution.GUESS_BEATS`). Far from the
       shipped designs a closed loop's slow venous mode needs more: from 5, Newton failed on 10
@@ -304,24 +306,42 @@ def solve_loop(
         members |= {f"{c}.{name}": value for c in scene.pumps}
     members = loop_members(scene, members)
     pump = load(scene.pump) if pump is None and scene.pumps else pump
+    chosen = config
     config = loop_config(scene) if config is None else config
     max_beats, tol = (int(beats), 0.0) if beats is not None else (scene.max_beats, scene.steady_tol)
     structure, numbers = _split(scene)
     method = "beats" if beats is not None else steady
-    metrics, traces, out = _solve(
-        structure,
-        numbers,
-        pump,
-        shard(members),
-        max_beats,
-        tol,
-        config,
-        save,
-        method,
-        int(guess_beats),
-        int(max_newton),
-    )
-    return solution(scene, members, config, metrics, traces, out, beats is not None)
+
+    def solve(members, config):
+        metrics, traces, out = _solve(
+            structure,
+            numbers,
+            pump,
+            shard(members),
+            max_beats,
+            tol,
+            config,
+            save,
+            method,
+            int(guess_beats),
+            int(max_newton),
+        )
+        return solution(scene, members, config, metrics, traces, out, beats is not None)
+
+    first = solve(members, config)
+    ran_out = np.flatnonzero(np.asarray(first.result == diffrax.RESULTS.max_steps_reached))
+    if chosen is not None or ran_out.size == 0:
+        return first
+    # members the explicit solver ran out of steps on are stiff: solve them again, implicitly
+    again = solve(jax.tree.map(lambda a: a[ran_out], members), stiff_loop_config(scene))
+    return jax.tree.map(lambda a, b: jnp.asarray(a).at[ran_out].set(b), first, again)
+
+
+def stiff_loop_config(scene: LoopScene) -> SolverConfig:
+    """The scene's accuracy preset with the implicit Kvaerno5, in forward mode: what
+    :func:`solve_loop` takes for the members the explicit :func:`loop_config` runs out of steps
+    on (near the design box's corners at 120-180 bpm, a pump's valves make the loop stiff)."""
+    return dataclasses.replace(preset(scene.accuracy, stiff=True), adjoint=diffrax.ForwardMode())
 
 
 def loop_config(scene: LoopScene) -> SolverConfig:

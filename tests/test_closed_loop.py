@@ -512,3 +512,35 @@ def test_cli_writes_the_loop_summary_traces_and_figure(tmp_path):
         volume = np.array([float(r[col[f"{chamber}_volume_ml"]]) for r in rows[1:]])
         assert record[f"{side}_sv_ml"] == pytest.approx(np.ptp(volume), rel=1e-6)
     assert f"{record['left_sv_ml']:.1f}" in done.stdout
+
+
+@pytest.mark.slow
+def test_member_the_explicit_solver_runs_out_on_is_solved_implicitly():
+    """tah at 180 bpm with both pumps at Omega 0, C 0.65 (a corner of the design box) runs out
+    of Tsit5's 16384 steps a beat (issue #40: 19 such members in the hard-case suite). By
+    default solve_loop solves such a member again with the implicit Kvaerno5; the member
+    beside it, at the scene's own design, keeps its explicit answer. With the explicit config
+    given explicitly, the stiff member reports that it ran out of steps."""
+    import diffrax
+
+    from cardiosoft.loop_batch import loop_config, solve_loop
+
+    scene = cs.load_scene("tah")
+    members = {
+        "bpm": [180.0, 180.0],
+        "lv.omega": [0.0, 4.0],
+        "lv.shortening": [0.65, 0.4],
+        "rv.omega": [0.0, 4.0],
+        "rv.shortening": [0.65, 0.4],
+    }
+    explicit = solve_loop(scene, members=members, save="metrics", config=loop_config(scene))
+    ran_out = np.asarray(explicit.result == diffrax.RESULTS.max_steps_reached)
+    assert ran_out.tolist() == [True, False]
+    default = solve_loop(scene, members=members, save="metrics")
+    assert bool(np.all(np.asarray(default.result == diffrax.RESULTS.successful)))
+    # the same program on the same batch: the unaffected member's answer is kept as it was
+    left = np.asarray(default.metrics.left.cardiac_output)
+    np.testing.assert_allclose(
+        left[1], np.asarray(explicit.metrics.left.cardiac_output)[1], rtol=1e-12
+    )
+    assert np.isfinite(left[0]) and left[0] > 0
