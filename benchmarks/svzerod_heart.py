@@ -35,7 +35,6 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import equinox as eqx  # noqa: E402
-import svzerod  # noqa: E402
 
 from cardiosoft import network  # noqa: E402
 
@@ -43,17 +42,6 @@ CASE = Path(__file__).resolve().parent.parent / "tests" / "data" / "svzerod"
 CASE = CASE / "closedLoopHeart_singleVessel.json"
 TARGET = 1e-4
 REFERENCE_REFINEMENT = 256
-
-
-def svzerod_run(config: dict, refine: int) -> dict:
-    config = json.loads(json.dumps(config))
-    sim = config["simulation_parameters"]
-    sim["output_variable_based"] = True
-    sim["number_of_time_pts_per_cardiac_cycle"] = (
-        sim["number_of_time_pts_per_cardiac_cycle"] - 1
-    ) * refine + 1
-    frame = svzerod.simulate(config)
-    return {k: g["y"].to_numpy()[::refine] for k, g in frame.groupby("name")}
 
 
 def compared(names):
@@ -113,13 +101,13 @@ def main() -> None:
     beats = config["simulation_parameters"]["number_of_cardiac_cycles"]
     model = network.read(config, "closedLoopHeart_singleVessel")
     print(f"reference: svzerod at {REFERENCE_REFINEMENT}x the case's points a beat ...")
-    reference = svzerod_run(config, REFERENCE_REFINEMENT)
+    reference = network.run_svzerod(config, REFERENCE_REFINEMENT)
 
     print("\nwork-precision (wall time per run of 10 beats, warm, best of 3)")
     print(f"{'solver':10s} {'setting':>14s} {'error':>10s} {'time (s)':>10s}")
     svz_rows, our_rows = [], []
     for refine in (1, 2, 4, 8, 16, 32, 64):
-        seconds, values = best_of(lambda r=refine: svzerod_run(config, r))
+        seconds, values = best_of(lambda r=refine: network.run_svzerod(config, r))
         svz_rows.append((refine, error(values, reference), seconds))
         setting = f"{refine * 99 + 1} pts/beat"
         print(f"{'svzerod':10s} {setting:>14s} {svz_rows[-1][1]:10.2e} {seconds:10.4f}")
@@ -148,7 +136,7 @@ def main() -> None:
     loop = min(args.loop, n)
     start = time.perf_counter()
     for f in factors[:loop]:
-        svzerod_run(variant_config(config, f), svz_at[0])
+        network.run_svzerod(variant_config(config, f), svz_at[0])
     svz_seconds = (time.perf_counter() - start) * n / loop
     print(f"\n{n} variants at an error of {TARGET:g} (all solved: {traces.solved}):")
     print(

@@ -35,17 +35,6 @@ FAST = ("pulsatileFlow_R_RCR",)
 against their upstream closed forms below."""
 
 
-def _svzerod(config: dict, refine: int) -> dict:
-    config = json.loads(json.dumps(config))
-    sim = config["simulation_parameters"]
-    sim["output_variable_based"] = True
-    sim["number_of_time_pts_per_cardiac_cycle"] = (
-        sim["number_of_time_pts_per_cardiac_cycle"] - 1
-    ) * refine + 1
-    frame = svzerod.simulate(config)
-    return {name: group["y"].to_numpy()[::refine] for name, group in frame.groupby("name")}
-
-
 def _compared(var: str, ours):
     """The samples where a variable means the same in both solvers. A closed valve of the
     combined heart block carries no flow here (0); svzerod reports its inductor's drift there,
@@ -62,7 +51,7 @@ def check_against_svzerod(name: str) -> None:
     traces = network.simulate(network.read(config), "reference")
     assert traces.solved and traces.steady_start in (True, None)
     base = BASE_REFINEMENT.get(name, 1)
-    y1, y4, y16 = (_svzerod(config, base * r) for r in (1, 4, 16))
+    y1, y4, y16 = (network.run_svzerod(config, base * r) for r in (1, 4, 16))
     assert set(traces.values) == set(y16), "svZeroDSolver's variable names"
     for var, ours in traces.values.items():
         at = _compared(var, ours)
@@ -190,7 +179,7 @@ def test_simulate_command_writes_traces_under_svzerod_names(tmp_path):
     header = (tmp_path / "traces.csv").read_text().splitlines()[0].split(",")
     table = np.loadtxt(tmp_path / "traces.csv", delimiter=",", skiprows=1)
     config = json.loads(case.read_text())
-    assert header[0] == "time" and set(header[1:]) == set(_svzerod(config, 1))
+    assert header[0] == "time" and set(header[1:]) == set(network.run_svzerod(config, 1))
     traces = network.simulate(network.read(case))
     for i, name in enumerate(header[1:], start=1):
         np.testing.assert_allclose(table[:, i], traces.values[name], rtol=1e-9)

@@ -12,3 +12,4 @@ from cardiosoft.network.svzerod import SUPPORTED_BLOCKS as SUPPORTED_BLOCKS
 from cardiosoft.network.svzerod import Model as Model
 from cardiosoft.network.svzerod import UnsupportedModel as UnsupportedModel
 from cardiosoft.network.svzerod import read as read
+from cardiosoft.network.svzerod import run_svzerod as run_svzerod

@@ -100,12 +100,16 @@ def _stenosis_drop(R, S, q):
 
 
 class BloodVessel(Block):
-    """svZeroDSolver's ``BloodVessel``: R (with a stenosis S|Q|) into a capacitor C to ground,
-    then an inductor L. Ports: inlet, outlet.
+    """svZeroDSolver's two-element-order vessels. Ports: inlet, outlet.
 
-    Equations (``BloodVessel.cpp``): ``P_in - (R + S|Q_in|) Q_in - P_out - L dQ_out/dt = 0`` and
-    ``Q_in - Q_out - C d(P_in - (R + S|Q_in|) Q_in)/dt = 0``. States: the capacitor's pressure
-    ``P_in - (R + S|Q_in|) Q_in`` when C > 0, the outlet flow when L > 0.
+    - ``BloodVessel`` (``resistor_first``): R (with a stenosis S|Q_in|) into a capacitor C to
+      ground, then an inductor L (``BloodVessel.cpp``): ``P_in - (R + S|Q_in|) Q_in - P_out -
+      L dQ_out/dt = 0`` and ``Q_in - Q_out - C d(P_in - (R + S|Q_in|) Q_in)/dt = 0``.
+    - ``BloodVesselCRL``: the capacitor at the inlet, then R (with S|Q_out|) and L in series
+      (``BloodVesselCRL.cpp``): ``Q_in - Q_out - C dP_in/dt = 0`` and
+      ``P_in - (R + S|Q_out|) Q_out - P_out - L dQ_out/dt = 0``.
+
+    States: the capacitor's pressure when C > 0, the outlet flow when L > 0.
     """
 
     R: jnp.ndarray
@@ -116,8 +120,12 @@ class BloodVessel(Block):
     has_L: bool = eqx.field(static=True)
     nonlinear: bool = eqx.field(static=True)
     """A stenosis (S != 0)."""
+    resistor_first: bool = eqx.field(static=True, default=True)
+    """R before the capacitor (``BloodVessel``), or after it (``BloodVesselCRL``)."""
 
-    kind = "BloodVessel"
+    @property
+    def kind(self):
+        return "BloodVessel" if self.resistor_first else "BloodVesselCRL"
 
     @property
     def n_states(self):
@@ -126,15 +134,19 @@ class BloodVessel(Block):
     def state_kinds(self):
         return ("pressure",) * self.has_C + ("flow",) * self.has_L
 
+    def _drops(self, Q):
+        """The resistance's pressure drop before the capacitor and after it."""
+        if self.resistor_first:
+            return _stenosis_drop(self.R, self.S, Q[0]), 0.0
+        return 0.0, _stenosis_drop(self.R, self.S, Q[1])
+
     def _capacitor(self, x, P, Q):
-        if self.has_C:
-            return x[0]
-        return P[0] - _stenosis_drop(self.R, self.S, Q[0])
+        return x[0] if self.has_C else P[0] - self._drops(Q)[0]
 
     def residuals(self, t, x, P, Q, steady=False):
-        first = P[0] - _stenosis_drop(self.R, self.S, Q[0]) - x[0] if self.has_C else Q[0] - Q[1]
-        p_c = self._capacitor(x, P, Q)
-        second = Q[1] - x[-1] if self.has_L else p_c - P[1]
+        before, after = self._drops(Q)
+        first = P[0] - before - x[0] if self.has_C else Q[0] - Q[1]
+        second = Q[1] - x[-1] if self.has_L else self._capacitor(x, P, Q) - after - P[1]
         return jnp.stack([first, second])
 
     def rates(self, t, x, P, Q, steady=False):
@@ -142,57 +154,13 @@ class BloodVessel(Block):
         if self.has_C:
             out.append((Q[0] - Q[1]) / self.C)
         if self.has_L:
-            out.append((self._capacitor(x, P, Q) - P[1]) / self.L)
+            out.append((self._capacitor(x, P, Q) - self._drops(Q)[1] - P[1]) / self.L)
         return jnp.stack(out) if out else _none(P)
 
     def states_from(self, values):
         p_in, q_in = values["P"][0], values["Q"][0]
-        p_c = p_in - (float(self.R) + float(self.S) * abs(q_in)) * q_in
-        return [p_c] * self.has_C + [values["Q"][1]] * self.has_L
-
-
-class BloodVesselCRL(Block):
-    """svZeroDSolver's ``BloodVesselCRL``: a capacitor C at the inlet, then R (with a stenosis
-    S|Q_out|) and L in series. States: the inlet pressure when C > 0, the outlet flow when L > 0.
-
-    Equations (``BloodVesselCRL.cpp``): ``Q_in - Q_out - C dP_in/dt = 0`` and
-    ``P_in - (R + S|Q_out|) Q_out - P_out - L dQ_out/dt = 0``.
-    """
-
-    R: jnp.ndarray
-    C: jnp.ndarray
-    L: jnp.ndarray
-    S: jnp.ndarray
-    has_C: bool = eqx.field(static=True)
-    has_L: bool = eqx.field(static=True)
-    nonlinear: bool = eqx.field(static=True)
-    kind = "BloodVesselCRL"
-
-    @property
-    def n_states(self):
-        return int(self.has_C) + int(self.has_L)
-
-    def state_kinds(self):
-        return ("pressure",) * self.has_C + ("flow",) * self.has_L
-
-    def _drop(self, P, Q):
-        return P[0] - _stenosis_drop(self.R, self.S, Q[1]) - P[1]
-
-    def residuals(self, t, x, P, Q, steady=False):
-        first = P[0] - x[0] if self.has_C else Q[0] - Q[1]
-        second = Q[1] - x[-1] if self.has_L else self._drop(P, Q)
-        return jnp.stack([first, second])
-
-    def rates(self, t, x, P, Q, steady=False):
-        out = []
-        if self.has_C:
-            out.append((Q[0] - Q[1]) / self.C)
-        if self.has_L:
-            out.append(self._drop(P, Q) / self.L)
-        return jnp.stack(out) if out else _none(P)
-
-    def states_from(self, values):
-        return [values["P"][0]] * self.has_C + [values["Q"][1]] * self.has_L
+        drop = (float(self.R) + float(self.S) * abs(q_in)) * q_in if self.resistor_first else 0.0
+        return [p_in - drop] * self.has_C + [values["Q"][1]] * self.has_L
 
 
 class FlowSource(Block):

@@ -29,7 +29,6 @@ import jax.numpy as jnp
 from cardiosoft.network.blocks import (
     RCR,
     BloodVessel,
-    BloodVesselCRL,
     ClosedLoopRCR,
     FlowSource,
     Junction,
@@ -151,17 +150,18 @@ def _table_period(tables) -> float | None:
     return periods.pop() if periods else None
 
 
-def _vessel(cls, name, p, ports):
-    """A two-element vessel (``BloodVessel``, ``BloodVesselCRL``): one inlet, one outlet."""
+def _vessel(kind, name, p, ports):
+    """A vessel (``BloodVessel``, ``BloodVesselCRL``): one inlet, one outlet."""
     ins, outs = ports
     if len(ins) != 1 or len(outs) != 1:
         raise UnsupportedModel(
-            f"{cls.kind} {name}: needs one inlet and one outlet connection, "
+            f"{kind} {name}: needs one inlet and one outlet connection, "
             f"has {len(ins)} and {len(outs)}"
         )
     R, C, L, S = (float(p[k]) for k in ("R_poiseuille", "C", "L", "stenosis_coefficient"))
     arrays = (jnp.asarray(v) for v in (R, C, L, S))
-    return cls(name, (ins[0], outs[0]), *arrays, C != 0, L != 0, S != 0)
+    first = kind == "BloodVessel"
+    return BloodVessel(name, (ins[0], outs[0]), *arrays, C != 0, L != 0, S != 0, first)
 
 
 def _vessel_junction(name, p, ports):
@@ -252,8 +252,7 @@ def read(source, name: str | None = None) -> Model:
     vessel_names = {}
     for v in config.get("vessels", []):
         vname, kind = v["vessel_name"], v.get("zero_d_element_type", "BloodVessel")
-        cls = {"BloodVessel": BloodVessel, "BloodVesselCRL": BloodVesselCRL}.get(kind)
-        if cls is None:
+        if kind not in ("BloodVessel", "BloodVesselCRL"):
             raise UnsupportedModel(f"block type {kind!r} (vessel {vname}) is not supported")
         vessel_names[v["vessel_id"]] = vname
         params = _values(
@@ -262,8 +261,8 @@ def read(source, name: str | None = None) -> Model:
             ("R_poiseuille",),
             ("C", "L", "stenosis_coefficient"),
         )
-        factories[vname] = lambda ports, cls=cls, vname=vname, p=params: _vessel(
-            cls, vname, p, ports
+        factories[vname] = lambda ports, kind=kind, vname=vname, p=params: _vessel(
+            kind, vname, p, ports
         )
         ends = v.get("boundary_conditions", {})
         if "inlet" in ends:
@@ -402,6 +401,27 @@ def _closed_loop(block: dict, period, connections, factories, heart_inlets):
             junction, (*ports[0], *ports[1]), len(ports[0])
         )
     return heart_period
+
+
+def run_svzerod(config: dict, refine: int = 1) -> dict:
+    """svZeroDSolver's own answer to ``config`` (its ``svzerod`` package, in cardiosoft's
+    ``[test]`` extra): every variable by name, at the model's output times, stepped with
+    ``refine`` times as many points a beat (every ``refine``-th sample is kept). The peer
+    that ``tests/test_network.py`` and ``benchmarks/svzerod_heart.py`` check against."""
+    try:
+        import svzerod
+    except ImportError:
+        raise ImportError(
+            "run_svzerod needs svZeroDSolver's Python build: pip install svzerod "
+            "(it comes with cardiosoft's [test] extra)"
+        ) from None
+    config = json.loads(json.dumps(config))
+    sim = config["simulation_parameters"]
+    sim["output_variable_based"] = True
+    points = sim["number_of_time_pts_per_cardiac_cycle"]
+    sim["number_of_time_pts_per_cardiac_cycle"] = (points - 1) * refine + 1
+    frame = svzerod.simulate(config)
+    return {name: group["y"].to_numpy()[::refine] for name, group in frame.groupby("name")}
 
 
 def _initial(given: dict, names: list[str]) -> dict:
