@@ -282,6 +282,43 @@ class ValveTanh(Block):
         return {f"valve_status:{self.name}": status}
 
 
+class PiecewiseValve(Block):
+    """svZeroDSolver's ``PiecewiseValve``: ``Rmin`` while the upstream pressure is above the
+    downstream one, else ``Rmax``. Ports: inlet, outlet."""
+
+    Rmax: jnp.ndarray
+    Rmin: jnp.ndarray
+    kind = "PiecewiseValve"
+    nonlinear = True
+
+    def residuals(self, t, x, P, Q, steady=False):
+        R = jnp.where(P[1] < P[0], self.Rmin, self.Rmax)
+        return jnp.stack([P[0] - P[1] - R * Q[0], Q[0] - Q[1]])
+
+
+class BloodVesselRC(Block):
+    """svZeroDSolver's ``BloodVesselRC`` (``BloodVesselRC.cpp``): a capacitor ``Cp`` at the
+    inlet (state) and ``Rpd`` to the outlet, with the outflow equal to the inflow, as upstream:
+    ``Cp dP_in/dt = Q_in - (P_in - P_out) / Rpd``, ``Q_out = Q_in``."""
+
+    Rpd: jnp.ndarray
+    Cp: jnp.ndarray
+    kind = "BloodVesselRC"
+    n_states = 1
+
+    def state_kinds(self):
+        return ("pressure",)
+
+    def residuals(self, t, x, P, Q, steady=False):
+        return jnp.stack([P[0] - x[0], Q[0] - Q[1]])
+
+    def rates(self, t, x, P, Q, steady=False):
+        return jnp.stack([(Q[0] - (x[0] - P[1]) / self.Rpd) / self.Cp])
+
+    def states_from(self, values):
+        return [values["P"][0]]
+
+
 class Junction(Block):
     """svZeroDSolver's ``NORMAL_JUNCTION``: one pressure on every port, and the inflows equal the
     outflows. ``n_in`` (static) ports are inlets."""

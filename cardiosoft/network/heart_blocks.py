@@ -167,3 +167,137 @@ class ClosedLoopHeart(Block):
         out.update({f"{q}:{self.name}": v[q] * s[q] for q in _VALVES})
         out.update({f"P_{c}:{self.name}": pr[c] for c in ("RV", "LA", "LV")})
         return out
+
+
+ACTIVATIONS = {
+    "half_cosine": ("t_active", "t_twitch"),
+    "piecewise_cosine": ("contract_start", "relax_start", "contract_duration", "relax_duration"),
+    "two_hill": ("t_shift", "tau_1", "tau_2", "m1", "m2"),
+    "fourier": (),
+    "wrapping_cosine": ("Tsa", "tpwave"),
+}
+"""svZeroDSolver's activation functions of a chamber and their parameters
+(``ActivationFunction.cpp``)."""
+
+
+def _two_hill_raw(t, p):
+    g1 = (t / p["tau_1"]) ** p["m1"]
+    g2 = (t / p["tau_2"]) ** p["m2"]
+    return g1 / (1.0 + g1) / (1.0 + g2)
+
+
+class Activation(eqx.Module):
+    """A chamber's activation in [0, 1] over the beat, as upstream computes it. ``scale`` and
+    ``offset`` (static) normalise ``two_hill`` and ``fourier`` as upstream does, from samples
+    of one beat (every 1e-5 s; 10,000 a beat)."""
+
+    kind: str = eqx.field(static=True)
+    p: dict
+    period: float = eqx.field(static=True)
+    scale: float = eqx.field(static=True, default=1.0)
+    offset: float = eqx.field(static=True, default=0.0)
+
+    @classmethod
+    def build(cls, kind: str, p: dict, period: float) -> Activation:
+        p = {k: float(v) for k, v in p.items()}
+        if kind == "two_hill":
+            samples = np.arange(0.0, period, 1e-5)
+            return cls(kind, p, period, 1.0 / float(np.max(_two_hill_raw(samples, p))))
+        if kind == "fourier":
+            modes = np.asarray(FOURIER_ELASTANCE)
+            phase = 2.0 * np.pi * np.outer(np.arange(10000) / 10000, np.arange(len(modes)))
+            raw = np.cos(phase) @ modes[:, 0] - np.sin(phase) @ modes[:, 1]
+            low, high = float(raw.min()), float(raw.max())
+            return cls(kind, p, period, 1.0 / ((high - low) or 1.0), low)
+        return cls(kind, p, period)
+
+    def __call__(self, t):
+        p, T = self.p, self.period
+        tau = jnp.fmod(t, T)
+        if self.kind == "half_cosine":
+            since = jnp.where(tau >= p["t_active"], tau - p["t_active"], 0.0)
+            rising = 0.5 - 0.5 * jnp.cos(2.0 * jnp.pi * since / p["t_twitch"])
+            return jnp.where(since <= p["t_twitch"], rising, 0.0)
+        if self.kind == "piecewise_cosine":
+            c = jnp.fmod(t - p["contract_start"], T)
+            r = jnp.fmod(t - p["relax_start"], T)
+            contracting = 0.5 * (1.0 - jnp.cos(jnp.pi * c / p["contract_duration"]))
+            relaxing = 0.5 * (1.0 + jnp.cos(jnp.pi * r / p["relax_duration"]))
+            relax = jnp.where((r >= 0.0) & (r < p["relax_duration"]), relaxing, 0.0)
+            return jnp.where((c >= 0.0) & (c < p["contract_duration"]), contracting, relax)
+        if self.kind == "two_hill":
+            shifted = jnp.fmod(tau - p["t_shift"], T)
+            shifted = jnp.where(shifted >= 0.0, shifted, shifted + T)
+            return self.scale * _two_hill_raw(shifted, p)
+        if self.kind == "fourier":
+            return (fourier_elastance(tau, T) - self.offset) * self.scale
+        return wrapping_cosine(tau, T, p["Tsa"], p["tpwave"])
+
+
+CHAMBER_PARAMETERS = {
+    "ChamberElastanceInductor": ("Emax", "Emin", "Vrd", "Vrs", "Impedance"),
+    "ChamberElastanceInductorExponential": ("Emax", "Kxp", "Kxv", "Vaso", "Impedance"),
+    "LinearElastanceChamber": ("Emax", "Epass", "Vrest"),
+}
+"""svZeroDSolver's chambers with an activation, and their parameters."""
+
+
+class Chamber(Block):
+    """svZeroDSolver's chambers (``ChamberElastanceInductor.cpp`` and its ``Exponential``
+    variant, ``LinearElastanceChamber.cpp``). Ports: inlet, outlet. States: the volume
+    ``Vc:NAME`` and, with an ``Impedance`` (inductance) > 0, the outflow.
+
+    Pressure at the inlet, with the activation ``a(t)``:
+
+    - ``ChamberElastanceInductor``: ``E (Vc - Vrest)``, ``E = Emin + (Emax - Emin) a``,
+      ``Vrest = Vrs + (1 - a) (Vrd - Vrs)``;
+    - ``...Exponential``: ``a Emax (Vc - Vaso) + (1 - a) Kxp (exp(Kxv (Vc - Vaso)) - 1)``;
+    - ``LinearElastanceChamber``: ``(Epass + Emax a) (Vc - Vrest)``, no inductor.
+
+    ``dVc/dt = Q_in - Q_out``; ``L dQ_out/dt = P_in - P_out`` (``P_in = P_out`` without one).
+    """
+
+    p: dict
+    activation: Activation
+    law: str = eqx.field(static=True)
+    has_L: bool = eqx.field(static=True)
+
+    @property
+    def kind(self):
+        return self.law
+
+    @property
+    def n_states(self):
+        return 1 + int(self.has_L)
+
+    def state_kinds(self):
+        return ("volume",) + ("flow",) * self.has_L
+
+    def internal_names(self):
+        return (f"Vc:{self.name}",)
+
+    def pressure(self, t, volume):
+        p, a = self.p, self.activation(t)
+        if self.law == "ChamberElastanceInductor":
+            rest = p["Vrs"] + (1.0 - a) * (p["Vrd"] - p["Vrs"])
+            return (p["Emin"] + (p["Emax"] - p["Emin"]) * a) * (volume - rest)
+        if self.law == "ChamberElastanceInductorExponential":
+            passive = p["Kxp"] * (jnp.exp(p["Kxv"] * (volume - p["Vaso"])) - 1.0)
+            return a * p["Emax"] * (volume - p["Vaso"]) + (1.0 - a) * passive
+        return (p["Epass"] + p["Emax"] * a) * (volume - p["Vrest"])
+
+    def residuals(self, t, x, P, Q, steady=False):
+        second = Q[1] - x[1] if self.has_L else P[0] - P[1]
+        return jnp.stack([P[0] - self.pressure(t, x[0]), second])
+
+    def rates(self, t, x, P, Q, steady=False):
+        volume = Q[0] - Q[1]
+        if self.has_L:
+            return jnp.stack([volume, (P[0] - P[1]) / self.p["Impedance"]])
+        return jnp.stack([volume])
+
+    def states_from(self, values):
+        return [values[f"Vc:{self.name}"]] + [values["Q"][1]] * self.has_L
+
+    def outputs(self, t, x, P, Q):
+        return {f"Vc:{self.name}": x[0]}
