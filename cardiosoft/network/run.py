@@ -126,8 +126,7 @@ def simulate(model: Model, accuracy: str = "default", *, rtol=None, variants=Non
         steps, stiff, solved = 0, False, True
     else:
         rtol = PRESETS[accuracy]["rtol"] if rtol is None else rtol
-        first = model.network
-        x_start = model.initial_states()
+        first, x_start = model.network, model.initial_states()
         atol = _tolerances(first, x_start, _start_nodes(first, x_start), rtol)
         jumps = _jump_times(first, t_all[-1])
         for stiff in (False, True):

@@ -20,6 +20,7 @@ line (:class:`UnsupportedModel`) that names it. Keys that start with ``_`` are c
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -122,13 +123,8 @@ class Model:
         return jnp.asarray(x, dtype=float)
 
     def variables(self) -> list[str]:
-        """svZeroDSolver's variable names: each node's pressure and flow, then internal ones."""
-        names = []
-        for up, down in self.network.nodes:
-            names += [f"pressure:{up}:{down}", f"flow:{up}:{down}"]
-        for b in self.network.blocks:
-            names += list(b.internal_names())
-        return names
+        """svZeroDSolver's variable names (:func:`variable_names`)."""
+        return variable_names(self.network)
 
 
 def _values(params: dict, where: str, required: tuple, optional: tuple = (), tables=()) -> dict:
@@ -152,6 +148,16 @@ def _values(params: dict, where: str, required: tuple, optional: tuple = (), tab
         else:
             out[k] = TimeTable([0.0], [value[0] if isinstance(value, list) else value])
     return out
+
+
+def variable_names(network: Network) -> list[str]:
+    """svZeroDSolver's variable names: each node's pressure and flow, then internal ones."""
+    names = []
+    for up, down in network.nodes:
+        names += [f"pressure:{up}:{down}", f"flow:{up}:{down}"]
+    for b in network.blocks:
+        names += list(b.internal_names())
+    return names
 
 
 def _table_period(tables) -> float | None:
@@ -358,18 +364,13 @@ def read(source, name: str | None = None) -> Model:
 
     blocks = [make(ports(block_name)) for block_name, make in factories.items()]
     network = Network(tuple(blocks), tuple(connections), float(period))
-    model = Model(network, simulation, {}, name or "model")
-    model = Model(
-        network,
-        simulation,
-        _initial(config.get("initial_condition", {}), model.variables()),
-        model.name,
-    )
+    initial = _initial(config.get("initial_condition", {}), variable_names(network))
+    model = Model(network, simulation, initial, name or "model")
     try:
         network = reduce_index(network, model.initial_states())
     except ValueError as error:
         raise UnsupportedModel(f"{model.name}: {error}") from None
-    return Model(network, simulation, model.initial, model.name)
+    return dataclasses.replace(model, network=network)
 
 
 def _chamber(chamber: dict, period: float, simulation: Simulation):
