@@ -5,7 +5,7 @@ model coupled with a lumped-parameter model for closed-loop blood circulation", 
 457, 111083; equations and defaults in ``notes/closed-loop-regazzoni.md``): four
 time-varying-elastance chambers, four RLC vessel compartments and four valves (the valve law is
 :class:`cardiosoft.valves.ArctanValve`). The soft pump takes the place of a ventricle as a
-:class:`PumpChamber`. :class:`cardiosoft.closed_loop.ClosedLoop` composes them.
+:class:`PumpChamber`. :class:`cardiosoft.network.closed_loop.ClosedLoop` composes them.
 
 Everything is SI: volumes m^3, pressures Pa, flows m^3/s, elastances Pa/m^3, resistances
 Pa s/m^3, compliances m^3/Pa, inertances Pa s^2/m^3, times s. Messages use the clinical units.

@@ -37,9 +37,9 @@ from cardiosoft.beat_solution import (
     shard,
     solution,
 )
-from cardiosoft.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
 from cardiosoft.metrics import trapezoid
+from cardiosoft.network.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.shooting import shoot_periodic
 from cardiosoft.solve import SolverConfig, periodic_beats, preset
@@ -177,10 +177,21 @@ def _save_times(loop: ClosedLoop):
 
 @eqx.filter_jit
 def _solve(
-    structure, numbers, pump, members, max_beats: int, tol, config, save, steady, guess, newton
+    structure,
+    numbers,
+    pump,
+    members,
+    max_beats: int,
+    tol,
+    config,
+    save,
+    steady,
+    guess,
+    newton,
+    engine,
 ):
     def one(member):
-        loop = loop_circuit(structure.with_numbers(numbers | member), pump)
+        loop = loop_circuit(structure.with_numbers(numbers | member), pump, engine)
         ts = None if save == "state" else _save_times(loop)
 
         def observe(ts, ys):
@@ -262,6 +273,7 @@ def solve_loop(
     config: SolverConfig | None = None,
     guess_beats: int = GUESS_BEATS,
     max_newton: int = 8,
+    engine: str = "direct",
 ) -> BeatSolution:
     """Simulate a batch of members of a closed-loop scene to their periodic steady state.
 
@@ -290,6 +302,8 @@ def solve_loop(
       (a 1e7 ratio of closed to open resistance) make the one-beat map nearly kinked: near the
       design box's corners Newton converges linearly, in 6-16 iterations on ``tah`` (Omega 6,
       C 0.65 on the left).
+    - ``engine``: ``"direct"`` or ``"network"``
+      (:attr:`~cardiosoft.network.closed_loop.ClosedLoop.engine`).
 
     **Returns:** a :class:`~cardiosoft.batch.BeatSolution` whose ``metrics`` are
     :class:`LoopMetrics`; nothing is raised for a member that fails or is not steady.
@@ -325,6 +339,7 @@ def solve_loop(
             method,
             int(guess_beats),
             int(max_newton),
+            engine,
         )
         return solution(scene, members, config, metrics, traces, out, beats is not None)
 

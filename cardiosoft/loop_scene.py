@@ -1,5 +1,5 @@
 """Closed-loop scenes: a TOML file (``kind = "closed_loop"``) -> a validated :class:`LoopScene`
--> the :class:`~cardiosoft.closed_loop.ClosedLoop` vector field.
+-> the :class:`~cardiosoft.network.closed_loop.ClosedLoop` vector field.
 
 The shipped ones (``cardiosoft/scenes/``): ``heart``, the native closed loop of Regazzoni et al.
 2022 with its published defaults (``notes/closed-loop-regazzoni.md``); ``soft-lv`` and
@@ -27,8 +27,8 @@ from typing import ClassVar
 
 from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES, CablePull
-from cardiosoft.closed_loop import CHAMBERS, VALVES, VESSELS, ClosedLoop
 from cardiosoft.heart import Activation, ElastanceChamber, PumpChamber, Vessel
+from cardiosoft.network.closed_loop import CHAMBERS, VALVES, VESSELS, ClosedLoop
 from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, PumpSurrogate
 from cardiosoft.solve import ACCURACY_PRESETS as ACCURACY
 from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s2_per_ml, mmHg_s_per_ml
@@ -166,10 +166,13 @@ def loop_numbers(scene: LoopScene) -> dict[str, float]:
     return out
 
 
-def loop_circuit(scene: LoopScene, pump: PumpSurrogate | None = None) -> ClosedLoop:
-    """The :class:`~cardiosoft.closed_loop.ClosedLoop` of ``scene`` (numbers may be traced).
+def loop_circuit(
+    scene: LoopScene, pump: PumpSurrogate | None = None, engine: str = "direct"
+) -> ClosedLoop:
+    """The :class:`~cardiosoft.network.closed_loop.ClosedLoop` of ``scene`` (numbers may be traced).
 
-    ``pump``: the surrogate of the pump chambers (required when the scene has any).
+    ``pump``: the surrogate of the pump chambers (required when the scene has any);
+    ``engine``: :attr:`~cardiosoft.network.closed_loop.ClosedLoop.engine`.
     """
     period = 60.0 / scene.bpm
     chambers = {}
@@ -202,7 +205,7 @@ def loop_circuit(scene: LoopScene, pump: PumpSurrogate | None = None) -> ClosedL
         valve = ArctanValve(scene.valve_min_resistance, scene.valve_max_resistance)
     else:
         valve = Valve(scene.valve_resistance, "smooth", scene.valve_smoothing)
-    return ClosedLoop(**chambers, **vessels, **dict.fromkeys(VALVES, valve))
+    return ClosedLoop(**chambers, **vessels, **dict.fromkeys(VALVES, valve), engine=engine)
 
 
 # Every numeric key of a closed-loop file: (table kind, key) -> its Scene field, unit and range.

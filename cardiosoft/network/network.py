@@ -74,6 +74,9 @@ class Network(eqx.Module):
     residuals into constraints on the states alone (see :func:`reduce_index`); None when
     there are none."""
     n_constraints: int = eqx.field(static=True, default=0)
+    order: tuple | None = eqx.field(static=True, default=None)
+    """The node equations' solving order (:func:`~cardiosoft.network.ordering.order_nodes`),
+    or None: one dense Newton on all of them."""
 
     @property
     def n_nodes(self) -> int:
@@ -130,15 +133,63 @@ class Network(eqx.Module):
 
     def node_values(self, t, x, steady: bool = False):
         """The nodes' pressures and flows ``z = (P, Q)`` at states ``x``."""
+        if self.order is not None and not steady:
+            return self._ordered(t, x)
         z, _ = self._node_solve(t, x, steady)
         return z
 
+    def _ordered(self, t, x):
+        """``z`` solved stage by stage in :attr:`order` (:mod:`~cardiosoft.network.ordering`):
+        a Newton step on each stage's unknowns, elementwise where its components are scalar;
+        ``1 + NEWTON_STEPS`` steps where they are not affine in their unknowns. The unknowns
+        are kept as scalars (an unsolved one a literal zero), so that a block reads its ports
+        without gathers."""
+        z = [0.0] * (2 * self.n_nodes)
+        offsets, n = self._offsets(), self.n_nodes
+        for stage in self.order:
+
+            def g(u, z=z, stage=stage):
+                z = list(z)
+                for i, value in zip(stage.unknowns, u, strict=True):
+                    z[i] = value
+                parts = []
+                for i, rows in stage.owners:
+                    b, k = self.blocks[i], offsets[i]
+                    P = jnp.stack([jnp.asarray(z[p], x.dtype) for p in b.ports])
+                    Q = jnp.stack([jnp.asarray(z[n + p], x.dtype) for p in b.ports])
+                    r = b.residuals(t, x[k : k + b.n_states], P, Q)
+                    parts += [r[j] for j in rows]
+                return jnp.stack(parts)
+
+            u = jnp.stack([jnp.asarray(z[i], x.dtype) for i in stage.unknowns])
+            for _ in range(1 if stage.affine else 1 + NEWTON_STEPS):
+                if stage.scalar:  # a diagonal Jacobian: one derivative along every unknown
+                    r, dr = jax.jvp(g, (u,), (jnp.ones_like(u),))
+                    u = u - r / dr
+                else:
+                    u = u - jnp.linalg.solve(jax.jacfwd(g)(u), g(u))
+            for i, value in zip(stage.unknowns, u, strict=True):
+                z[i] = value
+        return jnp.stack([jnp.asarray(v, x.dtype) for v in z])
+
     def _node_solve(self, t, x, steady=False):
+        if self.order is not None and not steady:
+            z = self._ordered(t, x)
+            return z, jnp.abs(self._dense_step(t, x, z, steady))
+
         def g(z):
             return self._algebraic(t, x, z, steady)
 
         steps = 1 + NEWTON_STEPS * self.nonlinear
         return _newton(g, jnp.zeros(2 * self.n_nodes, dtype=x.dtype), steps, None)
+
+    def _dense_step(self, t, x, z, steady):
+        """One Newton step on all the node equations at once, from ``z``."""
+
+        def g(z):
+            return self._algebraic(t, x, z, steady)
+
+        return jnp.linalg.solve(jax.jacfwd(g)(z), g(z))
 
     def _groups(self, offset):
         """Index arrays of the pressures and of the flows in ``z``, shifted by ``offset``."""

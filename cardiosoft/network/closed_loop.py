@@ -24,19 +24,48 @@ State (a dict, SI)::
 
 Blood volume is conserved: the chambers' volumes plus ``C p`` of each vessel
 (:meth:`ClosedLoop.total_volume`).
+
+With ``engine="network"`` the equations are solved as a
+:class:`~cardiosoft.network.network.Network` of blocks: the
+chambers (:class:`~cardiosoft.network.loop_blocks.LawChamber`), the vessels (svZeroDSolver's
+``BloodVesselCRL``: the capacitor at the inlet, then R and L) and the valves
+(:class:`~cardiosoft.network.loop_blocks.LawValve`), joined at twelve nodes. The nodes are solved
+in the order :func:`~cardiosoft.network.ordering.order_nodes` finds once for this wiring
+(:func:`loop_order`): each is one division, so a beat costs what the written-out field's does;
+its program is larger, and compiles slower (``benchmarks/loop_engine.py``).
 """
 
 from __future__ import annotations
+
+import functools
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cardiosoft.heart import AbstractChamber, PumpChamber, Vessel
+from cardiosoft.heart import AbstractChamber, Activation, ElastanceChamber, PumpChamber, Vessel
+from cardiosoft.network.blocks import BloodVessel
+from cardiosoft.network.loop_blocks import LawChamber, LawValve
+from cardiosoft.network.network import Network
+from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s2_per_ml, mmHg_s_per_ml
 from cardiosoft.valves import ArctanValve, Valve
 
-__all__ = ["CHAMBERS", "VALVES", "VESSELS", "ClosedLoop"]
+_E = mmHg / ml  # 1 mmHg/ml in Pa/m^3
+
+__all__ = [
+    "CHAMBERS",
+    "ENGINES",
+    "VALVES",
+    "VESSELS",
+    "ClosedLoop",
+    "flat_state",
+    "loop_order",
+    "state_tree",
+]
+
+ENGINES = ("direct", "network")
+"""How :class:`ClosedLoop` evaluates its equations (:attr:`ClosedLoop.engine`)."""
 
 CHAMBERS = ("la", "lv", "ra", "rv")
 """Left atrium, left ventricle, right atrium, right ventricle."""
@@ -86,8 +115,15 @@ class ClosedLoop(eqx.Module):
     aortic: ArctanValve | Valve
     tricuspid: ArctanValve | Valve
     pulmonary: ArctanValve | Valve
+    engine: str = eqx.field(static=True, default="direct")
+    """``"direct"``: the equations above written out; ``"network"``: the same equations as a
+    :class:`~cardiosoft.network.network.Network` of blocks (module docstring). The two agree to
+    round-off (``tests/test_network_loop.py``); the network compiles slower (measured in
+    ``benchmarks/loop_engine.py``), so it is not the default yet."""
 
     def __check_init__(self):
+        if self.engine not in ENGINES:
+            raise ValueError(f"engine {self.engine!r} is not one of {', '.join(ENGINES)}")
         periods = [getattr(self, c).period for c in CHAMBERS]
         if not any(isinstance(p, jax.core.Tracer) for p in periods):
             values = np.asarray(periods, dtype=float)
@@ -123,18 +159,45 @@ class ClosedLoop(eqx.Module):
             return y[name]["pressure"]
         return getattr(self, name).pressure(t, y[name]["volume"])
 
+    def network(self, order: tuple | None = None) -> Network:
+        """The loop as blocks joined at :data:`NODES`, its nodes solved in ``order``
+        (:func:`loop_order`), or by one dense Newton when None."""
+
+        def ports(name):
+            ins = [i for i, (_, down) in enumerate(NODES) if down == name]
+            return (*ins, *(i for i, (up, _) in enumerate(NODES) if up == name))
+
+        blocks = [LawChamber(c, ports(c), getattr(self, c)) for c in CHAMBERS]
+        for v in VESSELS:
+            vessel = getattr(self, v)
+            R, C, L = vessel.resistance, vessel.compliance, vessel.inertance
+            S = jnp.zeros_like(R)
+            blocks.append(BloodVessel(v, ports(v), R, C, L, S, True, True, False, False))
+        blocks += [LawValve(k, ports(k), getattr(self, k)) for k in VALVES]
+        return Network(tuple(blocks), NODES, 1.0, order=order)
+
     def _flows(self, t, y) -> tuple[dict, dict]:
-        """(pressures, valve flows) at time t (SI)."""
+        """(pressures, flows) at time t (SI): each compartment's pressure, each valve's and
+        vessel's flow."""
+        if self.engine == "network":
+            net = self.network(loop_order())
+            z = net.node_values(t, flat_state(y))
+            # a compartment's pressure is its inlet node's; a valve's or vessel's flow its outlet's
+            pressures = {down: z[i] for i, (_, down) in enumerate(NODES) if down not in VALVES}
+            n = net.n_nodes
+            flows = {up: z[n + i] for i, (up, _) in enumerate(NODES) if up not in CHAMBERS}
+            return pressures, flows
         pressures = {name: self._pressure(name, t, y) for name in (*CHAMBERS, *VESSELS)}
         flows = {
             valve: getattr(self, valve).flow(pressures[up] - pressures[down])
             for valve, (up, down) in VALVES.items()
         }
-        return pressures, flows
+        return pressures, flows | {v: y[v]["flow"] for v in VESSELS}
 
     def __call__(self, t, y, args=None) -> dict:
+        if self.engine == "network":
+            return state_tree(self.network(loop_order()).vector_field(t, flat_state(y)))
         pressures, flows = self._flows(t, y)
-        flows |= {v: y[v]["flow"] for v in VESSELS}
         dy = {
             c: {"volume": flows[fill] - flows[empty]} for c, (fill, empty) in _CHAMBER_PATH.items()
         }
@@ -147,11 +210,10 @@ class ClosedLoop(eqx.Module):
         of every chamber and vessel (a vessel's volume is ``C p``), ``{v}_flow`` through every
         valve and vessel, and for each pump ``{c}_pull`` (m) and ``{c}_cable_force`` (N)."""
         pressures, flows = self._flows(t, y)
-        out = {f"{k}_pressure": p for k, p in pressures.items()}
+        out = {f"{k}_pressure": pressures[k] for k in (*CHAMBERS, *VESSELS)}
         out |= {f"{c}_volume": y[c]["volume"] for c in CHAMBERS}
         out |= {f"{v}_volume": getattr(self, v).volume(y[v]) for v in VESSELS}
-        out |= {f"{k}_flow": q for k, q in flows.items()}
-        out |= {f"{v}_flow": y[v]["flow"] for v in VESSELS}
+        out |= {f"{k}_flow": flows[k] for k in (*VALVES, *VESSELS)}
         for c in self.pumps:
             chamber = getattr(self, c)
             out |= {f"{c}_{k}": s for k, s in chamber.observe(t, y[c]["volume"]).items()}
@@ -168,3 +230,55 @@ class ClosedLoop(eqx.Module):
         phases = [getattr(self, c).kink_phases() for c in CHAMBERS]
         ends = jnp.asarray([0.0, 1.0], dtype=jnp.result_type(float))
         return jnp.sort(jnp.concatenate([ends, *phases])) * self.period
+
+
+NODES = (
+    ("ven_pul", "la"), ("la", "mitral"), ("mitral", "lv"), ("lv", "aortic"),
+    ("aortic", "ar_sys"), ("ar_sys", "ven_sys"), ("ven_sys", "ra"), ("ra", "tricuspid"),
+    ("tricuspid", "rv"), ("rv", "pulmonary"), ("pulmonary", "ar_pul"), ("ar_pul", "ven_pul"),
+)  # fmt: skip
+"""The loop's connections (upstream, downstream), around from the pulmonary veins."""
+
+
+def flat_state(y) -> jax.Array:
+    """The state dict as the network's state vector: the chambers' volumes, then each
+    vessel's pressure and flow."""
+    vessels = [jnp.stack([y[v]["pressure"], y[v]["flow"]]) for v in VESSELS]
+    return jnp.concatenate([jnp.stack([y[c]["volume"] for c in CHAMBERS]), *vessels])
+
+
+def state_tree(x) -> dict:
+    """The inverse of :func:`flat_state`."""
+    out = {c: {"volume": x[i]} for i, c in enumerate(CHAMBERS)}
+    for j, v in enumerate(VESSELS):
+        out[v] = {"pressure": x[4 + 2 * j], "flow": x[5 + 2 * j]}
+    return {k: out[k] for k in (*CHAMBERS, *VESSELS)}
+
+
+@functools.cache
+def loop_order() -> tuple:
+    """The solving order of the loop's node equations. It depends on the wiring alone (every
+    chamber law gives the pressure of its two nodes, every valve law the flow through it), so
+    it is found once, on a stand-in loop (elastance chambers and arctan valves at
+    physiological values), and serves every closed loop: pumps and the smooth valve law have
+    the same equations' structure (``tests/test_network_loop.py`` checks ``tah``'s)."""
+    from cardiosoft.network.ordering import order_nodes
+
+    with jax.ensure_compile_time_eval():  # first asked for while a solve is being traced
+        loop = _stand_in()
+        return order_nodes(loop.network(), flat_state(loop.init()))
+
+
+def _stand_in() -> ClosedLoop:
+    """A closed loop with concrete values: each chamber 2 mmHg/ml active, 0.1 passive, 5 ml
+    unstressed, 100 ml at the start; each vessel 0.1 mmHg s/ml, 1 ml/mmHg, 1e-3 mmHg s^2/ml,
+    at 20 mmHg; the published valves (0.0075 and 75006.2 mmHg s/ml)."""
+    activation = Activation(1.0, 0.0, 0.3, 0.2)
+    chamber = ElastanceChamber(2.0 * _E, 0.1 * _E, 5.0 * ml, activation, 100.0 * ml)
+    vessel = Vessel(0.1 * mmHg_s_per_ml, ml_per_mmHg, 1e-3 * mmHg_s2_per_ml, 20.0 * mmHg)
+    valve = ArctanValve(0.0075 * mmHg_s_per_ml, 75006.2 * mmHg_s_per_ml)
+    return ClosedLoop(
+        **dict.fromkeys(CHAMBERS, chamber),
+        **dict.fromkeys(VESSELS, vessel),
+        **dict.fromkeys(VALVES, valve),
+    )

@@ -1,0 +1,147 @@
+"""The nodes' equations put in solving order: one small solve after another instead of one dense
+Newton on all of them.
+
+Most lumped circulations are causal: each node's pressure is set by one block (a capacitor's
+state, a chamber's law) and each flow by one other (an inductor's state, a valve's law at the
+pressures already known). Their node equations are then triangular after a permutation, and a
+solve of them one by one costs what a hand-written vector field costs. Where some equations are
+coupled (a resistor loop, a junction between algebraic resistances) they form one block of the
+permutation that is solved together.
+
+:func:`order_nodes` finds that permutation once, when the network is built, from which unknowns
+each residual holds (the sparsity of ``dg/dz`` at random points):
+
+1. a perfect matching of residuals to unknowns (each residual solved for one unknown);
+2. the strongly connected components of the graph "unknown -> the unknowns its residual
+   holds" (scipy's), grouped into stages in topological order (:class:`graphlib.
+   TopologicalSorter`): a stage's components need only earlier stages;
+3. for each component, whether its residuals are affine in its own unknowns (their Jacobian
+   unchanged when only those move, at random points): one Newton step from anywhere is then
+   exact; otherwise its stage takes ``NEWTON_STEPS`` more.
+
+Each stage evaluates the blocks that own its rows once, with one forward-mode derivative. A
+stage of one-unknown components is an elementwise division, with no LU (the closed loop's four
+stages: the pressures and the vessels' flows, each chamber's outlet pressure, the valves'
+inflows, their outflows); only a stage with coupled unknowns solves a small dense system.
+
+A run of an svZeroDSolver model still checks the nodes against the whole set of equations at
+its output times (:meth:`Network.newton_converged`), so that an order built on a mistaken
+sparsity would be caught.
+"""
+
+from __future__ import annotations
+
+import graphlib
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
+
+SPARSITY_POINTS = 3
+"""Random points at which the residuals' sparsity and the components' affinity are sampled: a
+coincidental zero at one is not one at all of them."""
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of the solving order: unknowns (indices into ``z``) that depend only on earlier
+    stages' and on each other within their component. ``owners``: per block index, its local
+    residual rows, in the unknowns' order; ``scalar``: every component has one unknown (the
+    stage's Jacobian in its unknowns is then diagonal); ``affine``: every component's rows are
+    affine in its own unknowns (one Newton step is exact)."""
+
+    unknowns: tuple[int, ...]
+    owners: tuple[tuple[int, tuple[int, ...]], ...]
+    scalar: bool
+    affine: bool
+
+
+def _points(net, x0, t, n, rng):
+    """Random (t, x, z) about the start: each state scaled by a factor in [0.5, 1.5] (a zero
+    state by a unit normal), the nodes' unknowns unit normals."""
+    x0 = np.asarray(x0, dtype=float)
+    for _ in range(n):
+        scale = rng.uniform(0.5, 1.5, x0.shape)
+        x = np.where(x0 != 0, x0 * scale, rng.standard_normal(x0.shape))
+        z = rng.standard_normal(2 * net.n_nodes)
+        yield t + rng.uniform(0.0, net.period), jnp.asarray(x), jnp.asarray(z)
+
+
+def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
+    """The solving order of ``net``'s node equations, or None when there is none to exploit
+    (a network whose index :func:`~cardiosoft.network.network.reduce_index` reduced: its
+    equations are combinations of every block's). Raises :class:`ValueError` when no residual
+    can be matched to some unknown (a structurally singular network)."""
+    if net.reduction is not None:
+        return None
+    rng = np.random.default_rng(seed)
+    m = 2 * net.n_nodes
+    jac = _jacobian(net)
+    pattern = np.zeros((m, m), dtype=bool)
+    for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
+        pattern |= np.asarray(jac(t, x, z)) != 0
+    match = maximum_bipartite_matching(sp.csr_matrix(pattern), perm_type="column")
+    if np.any(match < 0):
+        raise ValueError(
+            "the model's nodes are not determined by its equations: some residual cannot be "
+            "solved for any unknown"
+        )
+    # row r is solved for unknown match[r]; unknown u needs the unknowns its row holds
+    row_of = np.empty(m, dtype=int)
+    row_of[match] = np.arange(m)
+    needs = pattern[row_of]  # needs[u, v]: u's row holds v
+    n_comp, label = connected_components(sp.csr_matrix(needs), directed=True, connection="strong")
+    sorter = graphlib.TopologicalSorter({c: set() for c in range(n_comp)})
+    for u, v in zip(*np.nonzero(needs), strict=True):
+        if label[u] != label[v]:
+            sorter.add(int(label[u]), int(label[v]))
+    components = [[int(u) for u in np.flatnonzero(label == c)] for c in range(n_comp)]
+    affine = _affine(jac, net, x0, [([row_of[u] for u in c], c) for c in components], rng)
+    owner = _row_owners(net, x0)
+    stages = []
+    sorter.prepare()
+    while sorter.is_active():  # the components whose predecessors are solved, stage by stage
+        ready = sorted(sorter.get_ready())
+        sorter.done(*ready)
+        grouped: dict[int, list[int]] = {}  # rows of one block together
+        for c in ready:
+            for u in components[c]:
+                grouped.setdefault(owner[row_of[u]][0], []).append(int(row_of[u]))
+        owners = tuple((b, tuple(owner[r][1] for r in rows)) for b, rows in grouped.items())
+        unknowns = tuple(int(match[r]) for rows in grouped.values() for r in rows)
+        scalar = all(len(components[c]) == 1 for c in ready)
+        stages.append(Stage(unknowns, owners, scalar, all(affine[c] for c in ready)))
+    return tuple(stages)
+
+
+def _jacobian(net):
+    """``(t, x, z) -> dg/dz``, compiled once per network."""
+    return jax.jit(jax.jacfwd(lambda t, x, z: net.residuals(t, x, z), argnums=2))
+
+
+def _row_owners(net, x0) -> list[tuple[int, int]]:
+    """(block index, row within the block) of each residual row."""
+    z = jnp.zeros(2 * net.n_nodes)
+    owner = []
+    for i, (b, xb, P, Q) in enumerate(net._each(jnp.asarray(x0, dtype=float), z)):
+        n = jax.eval_shape(lambda xb, P, Q, b=b: b.residuals(0.0, xb, P, Q), xb, P, Q).shape[0]
+        owner += [(i, k) for k in range(n)]
+    return owner
+
+
+def _affine(jac, net, x0, components, rng) -> list[bool]:
+    """Whether each component's rows are affine in its own unknowns: their Jacobian in those
+    unknowns does not change when only those unknowns do, at each sampled point."""
+    affine = [True] * len(components)
+    for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
+        base = np.asarray(jac(t, x, z))
+        for i, (rows, unknowns) in enumerate(components):
+            moved = np.asarray(z).copy()
+            moved[unknowns] = rng.standard_normal(len(unknowns))
+            other = np.asarray(jac(t, x, jnp.asarray(moved)))
+            block = np.ix_(rows, unknowns)
+            affine[i] &= bool(np.allclose(other[block], base[block], rtol=1e-12, atol=0.0))
+    return affine
