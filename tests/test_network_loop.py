@@ -69,15 +69,17 @@ def test_the_loops_network_has_the_written_out_loops_field_and_signals(name):
             assert abs(float(s[key]) - float(r[key])) <= ROUND_OFF * scale, key
 
 
-def test_the_loops_nodes_are_solved_in_four_stages_of_divisions():
-    """Pressures and vessel flows from the states, then each chamber's outlet pressure, then
-    the valves' inflows, then their outflows: every component one unknown, every equation
-    affine in it, so that no LU and no Newton iteration is needed."""
+def test_the_loops_nodes_are_solved_in_two_stages_of_divisions_and_two_of_copies():
+    """Pressures and vessel flows from the states, then each chamber's outlet pressure (a
+    copy of its inlet's), then the valves' inflows, then their outflows (copies): every
+    component one unknown, every equation affine in it, so that no LU and no Newton
+    iteration is needed."""
     order = loop_order()
-    assert [len(stage.unknowns) for stage in order] == [12, 4, 4, 4]
+    assert [len(stage.unknowns) for stage in order] == [12, 0, 4, 0]
+    assert [len(stage.aliases) for stage in order] == [0, 4, 0, 4]
     assert all(stage.scalar and stage.affine for stage in order)
-    unknowns = sorted(u for stage in order for u in stage.unknowns)
-    assert unknowns == list(range(24))
+    unknowns = [u for stage in order for u in (*stage.unknowns, *(a for a, _ in stage.aliases))]
+    assert sorted(unknowns) == list(range(24))
 
 
 def _dense_and_ordered(net, x0, n=4, seed=1):

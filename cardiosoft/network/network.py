@@ -98,11 +98,22 @@ class Network(eqx.Module):
         return offsets
 
     def _each(self, x, z):
-        """(block, its states, its ports' P, its ports' Q) per block."""
-        P, Q = z[: self.n_nodes], z[self.n_nodes :]
-        for b, k in zip(self.blocks, self._offsets(), strict=True):
+        """(block, its states, its ports' P, its ports' Q) per block. ``z``: an array, or a list
+        of scalars (:meth:`_ordered`'s, read without gathers)."""
+        offsets = self._offsets()
+        for i in range(len(self.blocks)):
+            yield self._block(i, offsets[i], x, z)
+
+    def _block(self, i, offset, x, z):
+        """(block i, its states, its ports' P, its ports' Q); ``offset``: its first state."""
+        b, n = self.blocks[i], self.n_nodes
+        if isinstance(z, list):
+            P = jnp.stack([jnp.asarray(z[p], x.dtype) for p in b.ports])
+            Q = jnp.stack([jnp.asarray(z[n + p], x.dtype) for p in b.ports])
+        else:
             ports = np.asarray(b.ports, dtype=int)
-            yield b, x[k : k + b.n_states], P[ports], Q[ports]
+            P, Q = z[:n][ports], z[n:][ports]
+        return b, x[offset : offset + b.n_states], P, Q
 
     def residuals(self, t, x, z, steady: bool = False):
         """Every block's algebraic residuals, stacked (as many as ``z``)."""
@@ -134,47 +145,59 @@ class Network(eqx.Module):
     def node_values(self, t, x, steady: bool = False):
         """The nodes' pressures and flows ``z = (P, Q)`` at states ``x``."""
         if self.order is not None and not steady:
-            return self._ordered(t, x)
+            return self._stacked(self._ordered(t, x), x.dtype)
         z, _ = self._node_solve(t, x, steady)
         return z
 
-    def _ordered(self, t, x):
-        """``z`` solved stage by stage in :attr:`order` (:mod:`~cardiosoft.network.ordering`):
-        a Newton step on each stage's unknowns, elementwise where its components are scalar;
-        ``1 + NEWTON_STEPS`` steps where they are not affine in their unknowns. The unknowns
-        are kept as scalars (an unsolved one a literal zero), so that a block reads its ports
-        without gathers."""
-        z = [0.0] * (2 * self.n_nodes)
-        offsets, n = self._offsets(), self.n_nodes
-        for stage in self.order:
+    @staticmethod
+    def _stacked(z: list, dtype):
+        return jnp.stack([jnp.asarray(v, dtype) for v in z])
 
-            def g(u, z=z, stage=stage):
-                z = list(z)
+    def _ordered(self, t, x) -> list:
+        """The nodes' unknowns solved stage by stage in :attr:`order`
+        (:mod:`~cardiosoft.network.ordering`), as a list of scalars (an unsolved one a literal
+        zero, so that a block reads its ports without gathers): aliases copied, then a Newton
+        step on the stage's unknowns, elementwise where its components are scalar;
+        ``1 + NEWTON_STEPS`` steps where they are not affine in their unknowns."""
+        z: list = [0.0] * (2 * self.n_nodes)
+        offsets = self._offsets()
+        for stage in self.order:
+            for u, v in stage.aliases:
+                z[u] = z[v]
+            if not stage.unknowns:
+                continue
+
+            def g(*u, stage=stage, before=tuple(z)):
+                z = list(before)
                 for i, value in zip(stage.unknowns, u, strict=True):
                     z[i] = value
-                parts = []
+                out = []
                 for i, rows in stage.owners:
-                    b, k = self.blocks[i], offsets[i]
-                    P = jnp.stack([jnp.asarray(z[p], x.dtype) for p in b.ports])
-                    Q = jnp.stack([jnp.asarray(z[n + p], x.dtype) for p in b.ports])
-                    r = b.residuals(t, x[k : k + b.n_states], P, Q)
-                    parts += [r[j] for j in rows]
-                return jnp.stack(parts)
+                    b, xb, P, Q = self._block(i, offsets[i], x, z)
+                    r = b.residuals(t, xb, P, Q)
+                    out += [r[j] for j in rows]
+                return tuple(out)
 
-            u = jnp.stack([jnp.asarray(z[i], x.dtype) for i in stage.unknowns])
+            u = tuple(jnp.asarray(z[i], x.dtype) for i in stage.unknowns)
             for _ in range(1 if stage.affine else 1 + NEWTON_STEPS):
                 if stage.scalar:  # a diagonal Jacobian: one derivative along every unknown
-                    r, dr = jax.jvp(g, (u,), (jnp.ones_like(u),))
-                    u = u - r / dr
+                    r, dr = jax.jvp(g, u, tuple(jnp.ones_like(v) for v in u))
+                    u = tuple(v - a / b for v, a, b in zip(u, r, dr, strict=True))
                 else:
-                    u = u - jnp.linalg.solve(jax.jacfwd(g)(u), g(u))
+
+                    def stacked(w, g=g):
+                        return jnp.stack(g(*(w[i] for i in range(w.shape[0]))))
+
+                    w = jnp.stack(u)
+                    step = jnp.linalg.solve(jax.jacfwd(stacked)(w), stacked(w))
+                    u = tuple(v - step[i] for i, v in enumerate(u))
             for i, value in zip(stage.unknowns, u, strict=True):
                 z[i] = value
-        return jnp.stack([jnp.asarray(v, x.dtype) for v in z])
+        return z
 
     def _node_solve(self, t, x, steady=False):
         if self.order is not None and not steady:
-            z = self._ordered(t, x)
+            z = self._stacked(self._ordered(t, x), x.dtype)
             return z, jnp.abs(self._dense_step(t, x, z, steady))
 
         def g(z):
@@ -208,6 +231,8 @@ class Network(eqx.Module):
 
     def vector_field(self, t, x, steady: bool = False):
         """``dx/dt`` at ``(t, x)``; ``steady`` uses the steady start-up's equations."""
+        if self.order is not None and not steady:
+            return self.rates(t, x, self._ordered(t, x))
         return self.rates(t, x, self.node_values(t, x, steady), steady)
 
     def outputs(self, t, x, z) -> dict:

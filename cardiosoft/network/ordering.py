@@ -34,6 +34,7 @@ from __future__ import annotations
 import graphlib
 from dataclasses import dataclass
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -51,12 +52,15 @@ class Stage:
     stages' and on each other within their component. ``owners``: per block index, its local
     residual rows, in the unknowns' order; ``scalar``: every component has one unknown (the
     stage's Jacobian in its unknowns is then diagonal); ``affine``: every component's rows are
-    affine in its own unknowns (one Newton step is exact)."""
+    affine in its own unknowns (one Newton step is exact); ``aliases``: (u, v) pairs of
+    unknowns that a residual ``c (z_u - z_v)`` sets equal (a chamber's two pressures, a valve's
+    two flows), copied without evaluating their block."""
 
     unknowns: tuple[int, ...]
     owners: tuple[tuple[int, tuple[int, ...]], ...]
     scalar: bool
     affine: bool
+    aliases: tuple[tuple[int, int], ...] = ()
 
 
 def _points(net, x0, t, n, rng):
@@ -67,7 +71,7 @@ def _points(net, x0, t, n, rng):
         scale = rng.uniform(0.5, 1.5, x0.shape)
         x = np.where(x0 != 0, x0 * scale, rng.standard_normal(x0.shape))
         z = rng.standard_normal(2 * net.n_nodes)
-        yield t + rng.uniform(0.0, net.period), jnp.asarray(x), jnp.asarray(z)
+        yield jnp.asarray(t + rng.uniform(0.0, net.period)), jnp.asarray(x), jnp.asarray(z)
 
 
 def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
@@ -82,7 +86,7 @@ def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
     jac = _jacobian(net)
     pattern = np.zeros((m, m), dtype=bool)
     for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
-        pattern |= np.asarray(jac(t, x, z)) != 0
+        pattern |= np.asarray(jac(t, x, z)[0]) != 0
     match = maximum_bipartite_matching(sp.csr_matrix(pattern), perm_type="column")
     if np.any(match < 0):
         raise ValueError(
@@ -99,13 +103,16 @@ def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
         if label[u] != label[v]:
             sorter.add(int(label[u]), int(label[v]))
     components = [[int(u) for u in np.flatnonzero(label == c)] for c in range(n_comp)]
-    affine = _affine(jac, net, x0, [([row_of[u] for u in c], c) for c in components], rng)
+    affine = _affine(net, x0, [([row_of[u] for u in c], c) for c in components], rng)
     owner = _row_owners(net, x0)
+    alias = _aliases(jac, net, x0, pattern, match, rng)
     stages = []
     sorter.prepare()
     while sorter.is_active():  # the components whose predecessors are solved, stage by stage
         ready = sorted(sorter.get_ready())
         sorter.done(*ready)
+        copies = tuple((u, alias[u]) for c in ready for u in components[c] if u in alias)
+        ready = [c for c in ready if components[c][0] not in alias]
         grouped: dict[int, list[int]] = {}  # rows of one block together
         for c in ready:
             for u in components[c]:
@@ -113,35 +120,80 @@ def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
         owners = tuple((b, tuple(owner[r][1] for r in rows)) for b, rows in grouped.items())
         unknowns = tuple(int(match[r]) for rows in grouped.values() for r in rows)
         scalar = all(len(components[c]) == 1 for c in ready)
-        stages.append(Stage(unknowns, owners, scalar, all(affine[c] for c in ready)))
+        flag = all(affine[c] for c in ready)
+        stages.append(Stage(unknowns, owners, scalar, flag, copies))
     return tuple(stages)
 
 
+def _aliases(jac, net, x0, pattern, match, rng) -> dict[int, int]:
+    """``{u: v}``: the unknowns whose matched residual is ``c (z_u - z_v)`` with a constant c at
+    every sampled point (exactly: no other term)."""
+    candidates = {}
+    for r in range(pattern.shape[0]):
+        held = np.flatnonzero(pattern[r])
+        if len(held) == 2:
+            u = int(match[r])
+            candidates[u] = (r, int(held[held != u][0]))
+    for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
+        (J, g), zz = jax.tree.map(np.asarray, jac(t, x, z)), np.asarray(z)
+        for u, (r, v) in list(candidates.items()):
+            c = J[r, u]
+            if not (J[r, v] == -c and c != 0 and g[r] == c * (zz[u] - zz[v])):
+                del candidates[u]
+    return {u: v for u, (_, v) in candidates.items()}
+
+
 def _jacobian(net):
-    """``(t, x, z) -> dg/dz``, compiled once per network."""
-    return jax.jit(jax.jacfwd(lambda t, x, z: net.residuals(t, x, z), argnums=2))
+    """``(t, x, z) -> (dg/dz, g)`` at one point."""
+
+    def at(t, x, z):
+        J, g = _jacobians(net, t, x, jnp.broadcast_to(z, (2 * net.n_nodes + 1, z.shape[0])))
+        return J[0], g[0]
+
+    return at
 
 
 def _row_owners(net, x0) -> list[tuple[int, int]]:
-    """(block index, row within the block) of each residual row."""
-    z = jnp.zeros(2 * net.n_nodes)
-    owner = []
-    for i, (b, xb, P, Q) in enumerate(net._each(jnp.asarray(x0, dtype=float), z)):
-        n = jax.eval_shape(lambda xb, P, Q, b=b: b.residuals(0.0, xb, P, Q), xb, P, Q).shape[0]
-        owner += [(i, k) for k in range(n)]
-    return owner
+    """(block index, row within the block) of each residual row (traced once, not run)."""
+
+    def counts(net, x, z):
+        return [b.residuals(0.0, xb, P, Q) for b, xb, P, Q in net._each(x, z)]
+
+    z = jax.ShapeDtypeStruct((2 * net.n_nodes,), jnp.result_type(float))
+    shapes = eqx.filter_eval_shape(counts, net, jnp.asarray(x0, dtype=float), z)
+    return [(i, k) for i, shape in enumerate(shapes) for k in range(shape.shape[0])]
 
 
-def _affine(jac, net, x0, components, rng) -> list[bool]:
+def _affine(net, x0, components, rng) -> list[bool]:
     """Whether each component's rows are affine in its own unknowns: their Jacobian in those
     unknowns does not change when only those unknowns do, at each sampled point."""
     affine = [True] * len(components)
     for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
-        base = np.asarray(jac(t, x, z))
+        moved = np.repeat(np.asarray(z)[None], len(components) + 1, axis=0)  # row 0: as is
+        for i, (_, unknowns) in enumerate(components):
+            moved[i + 1, unknowns] = rng.standard_normal(len(unknowns))
+        J = np.asarray(_jacobians(net, t, x, jnp.asarray(_padded(moved)))[0])
         for i, (rows, unknowns) in enumerate(components):
-            moved = np.asarray(z).copy()
-            moved[unknowns] = rng.standard_normal(len(unknowns))
-            other = np.asarray(jac(t, x, jnp.asarray(moved)))
             block = np.ix_(rows, unknowns)
-            affine[i] &= bool(np.allclose(other[block], base[block], rtol=1e-12, atol=0.0))
+            affine[i] &= bool(np.allclose(J[i + 1][block], J[0][block], rtol=1e-12, atol=0.0))
     return affine
+
+
+def _padded(zs):
+    """``zs`` with its last row repeated to ``zs.shape[1] + 1`` rows (at most one per component
+    and one more): every call of :func:`_jacobians` has one shape, one compile."""
+    rows = zs.shape[1] + 1
+    return np.concatenate([zs, np.repeat(zs[-1:], rows - zs.shape[0], axis=0)])
+
+
+@eqx.filter_jit
+def _jacobians(net, t, x, zs):
+    """``(dg/dz, g)`` at each of the unknowns ``zs`` (a leading axis). The network is an
+    argument, not a constant of the program: under ``jax.ensure_compile_time_eval``
+    (:func:`~cardiosoft.network.closed_loop.loop_order`) its constants would otherwise be
+    folded eagerly, one small compile per operation."""
+
+    def g(z):
+        return net.residuals(t, x, z)
+
+    return jax.vmap(lambda z: (jax.jacfwd(g)(z), g(z)))(zs)
