@@ -3,10 +3,12 @@
 svZeroDSolver steps a fixed-step second-order generalized-alpha scheme, so its answer depends on
 its step. Each check runs ``svzerod`` at the step ``h`` of the case, h/4 and h/16 (other
 refinements where a case needs them, ``REFINEMENTS``), measures the observed order p from the
-three, and estimates the error left at the finest as ``|y_4 - y_16| / (4^p - 1)`` (Richardson,
-p clipped to [1, 3]). Our adaptive solve (preset "reference", rtol 1e-10) must lie
-within twice that estimate of the finest ``svzerod`` answer, plus 1e-7 of each variable's range:
-svZeroDSolver's own Newton stops at an absolute 1e-8 or 1e-9 in the model's units. The
+three (from the largest differences, and at each sample where its own is lower: 2 where the
+answer is smooth, 1 just after a valve switches), and estimates the error left at the finest
+as ``|y_4 - y_16| / (4^p - 1)`` (Richardson, p clipped to [1, 3]). Our adaptive solve (preset
+"reference", rtol 1e-10) must lie within twice that estimate (plus our own error) of the
+finest ``svzerod`` answer at every sample, plus 1e-7 of each variable's range: svZeroDSolver's
+own Newton stops at an absolute 1e-8 or 1e-9 in the model's units. The
 tolerance is therefore the case's own, printed on failure.
 """
 
@@ -81,16 +83,27 @@ def check_against_svzerod(name: str) -> None:
             continue
         ref = fine[var][at]
         scale = np.ptp(fine[var]) + np.max(np.abs(fine[var])) * 1e-3 + 1e-300
-        e1 = np.max(np.abs(coarse[var] - middle[var])[at])
-        e2 = np.max(np.abs(middle[var][at] - ref))
-        order = np.clip(np.log(e1 / e2) / np.log(ratio), 1.0, 3.0) if e2 > 1e-9 * scale else 2.0
-        left = e2 / (ratio**order - 1)
+        # Richardson: the order p from the largest differences, and at each sample its own
+        # where that is lower (svzerod converges at first order just after a valve switches,
+        # at the decomposed heart's first samples after one): what is left there is larger
+        e1, e2 = np.abs(coarse[var] - middle[var])[at], np.abs(middle[var][at] - ref)
+        order = 2.0
+        if e2.max() > 1e-9 * scale:
+            order = np.clip(np.log(e1.max() / e2.max()) / np.log(ratio), 1.0, 3.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            local = np.clip(np.log(e1 / e2) / np.log(ratio), 1.0, 3.0)
+        local = np.where((e2 > 1e-9 * scale) & np.isfinite(local), local, order)
+        left = np.maximum(
+            e2.max() / (ratio**order - 1), e2 / (ratio ** np.minimum(local, order) - 1)
+        )
         own = np.max(np.abs(looser[var] - ours)[at])
         tolerance = 2 * (left + own) + 1e-7 * scale
-        error = np.max(np.abs(ours[at] - ref))
-        assert error <= tolerance, (
-            f"{name} {var}: {error:.3g} > {tolerance:.3g} "
-            f"(svzerod's error left {left:.3g}, order {order:.2f}; ours {own:.3g})"
+        error = np.abs(ours[at] - ref)
+        worst = int(np.argmax(error - tolerance))
+        assert np.all(error <= tolerance), (
+            f"{name} {var}: {error[worst]:.3g} > {tolerance[worst]:.3g} at sample {worst} "
+            f"(svzerod's error left {left[worst]:.3g}, order {order:.2f} and {local[worst]:.2f} "
+            f"there; ours {own:.3g})"
         )
 
 

@@ -11,7 +11,9 @@ permutation that is solved together.
 :func:`order_nodes` finds that permutation once, when the network is built, from which unknowns
 each residual holds (the sparsity of ``dg/dz`` at random points):
 
-1. a perfect matching of residuals to unknowns (each residual solved for one unknown);
+1. a perfect matching of residuals to unknowns (each residual solved for one unknown), of
+   least cost where a residual costs more for an unknown it is not affine in (a tanh or
+   piecewise valve is solved for its flow, at pressures already known, not for a pressure);
 2. the strongly connected components of the graph "unknown -> the unknowns its residual
    holds" (scipy's), grouped into stages in topological order (:class:`graphlib.
    TopologicalSorter`): a stage's components need only earlier stages;
@@ -39,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
+from scipy.sparse.csgraph import connected_components, min_weight_full_bipartite_matching
 
 SPARSITY_POINTS = 3
 """Random points at which the residuals' sparsity and the components' affinity are sampled: a
@@ -84,15 +86,19 @@ def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
     rng = np.random.default_rng(seed)
     m = 2 * net.n_nodes
     jac = _jacobian(net)
-    pattern = np.zeros((m, m), dtype=bool)
-    for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
-        pattern |= np.asarray(jac(t, x, z)[0]) != 0
-    match = maximum_bipartite_matching(sp.csr_matrix(pattern), perm_type="column")
-    if np.any(match < 0):
+    pattern, linear = _edges(net, x0, rng)
+    # each residual solved for an unknown it is affine in wherever the wiring allows: a valve's
+    # law for its flow, not for a pressure it switches on
+    cost = np.where(pattern, np.where(linear, 1.0, 1.0 + m), 0.0)
+    try:
+        rows, cols = min_weight_full_bipartite_matching(sp.csr_matrix(cost))
+    except ValueError:
         raise ValueError(
             "the model's nodes are not determined by its equations: some residual cannot be "
             "solved for any unknown"
-        )
+        ) from None
+    match = np.empty(m, dtype=int)
+    match[rows] = cols
     # row r is solved for unknown match[r]; unknown u needs the unknowns its row holds
     row_of = np.empty(m, dtype=int)
     row_of[match] = np.arange(m)
@@ -164,18 +170,50 @@ def _row_owners(net, x0) -> list[tuple[int, int]]:
     return [(i, k) for i, shape in enumerate(shapes) for k in range(shape.shape[0])]
 
 
+def _moves_are_linear(J, g, zs, unknowns) -> np.ndarray:
+    """Per residual row: whether moving ``unknowns`` from ``zs[0]`` to ``zs[1]`` changed the
+    residual by exactly its linear prediction and left its Jacobian in them unchanged (``J``,
+    ``g``: at the two points). Curvature fails the second test, a jump (a valve that switches
+    its resistance on the sign of a pressure drop) the first."""
+    step = zs[1][unknowns] - zs[0][unknowns]
+    predicted = J[0][:, unknowns] @ step
+    scale = np.maximum(np.abs(g[0]), np.abs(g[1])) + np.abs(predicted)
+    values = np.abs(g[1] - g[0] - predicted) <= 1e-9 * scale
+    slopes = np.all(np.isclose(J[1][:, unknowns], J[0][:, unknowns], rtol=1e-12, atol=0.0), axis=1)
+    return values & slopes
+
+
+def _edges(net, x0, rng) -> tuple[np.ndarray, np.ndarray]:
+    """``(pattern, linear)``: which unknowns each residual holds (its Jacobian nonzero at some
+    sampled point), and whether it is affine in each of them (:func:`_moves_are_linear` at
+    every point, moving that unknown alone)."""
+    m = 2 * net.n_nodes
+    pattern = np.zeros((m, m), dtype=bool)
+    linear = np.ones((m, m), dtype=bool)
+    for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
+        moved = np.repeat(np.asarray(z)[None], m + 1, axis=0)  # row 0: as is; row u + 1: u moved
+        moved[np.arange(1, m + 1), np.arange(m)] = rng.standard_normal(m)
+        J, g = (np.asarray(a) for a in _jacobians(net, t, x, jnp.asarray(moved)))
+        pattern |= J[0] != 0
+        for u in range(m):
+            pair = [0, u + 1]
+            linear[:, u] &= _moves_are_linear(J[pair], g[pair], moved[pair], [u])
+    return pattern, linear
+
+
 def _affine(net, x0, components, rng) -> list[bool]:
-    """Whether each component's rows are affine in its own unknowns: their Jacobian in those
-    unknowns does not change when only those unknowns do, at each sampled point."""
+    """Whether each component's rows are affine in its own unknowns (:func:`_moves_are_linear`
+    at each sampled point, moving the component's unknowns together)."""
     affine = [True] * len(components)
     for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
         moved = np.repeat(np.asarray(z)[None], len(components) + 1, axis=0)  # row 0: as is
         for i, (_, unknowns) in enumerate(components):
             moved[i + 1, unknowns] = rng.standard_normal(len(unknowns))
-        J = np.asarray(_jacobians(net, t, x, jnp.asarray(_padded(moved)))[0])
+        J, g = (np.asarray(a) for a in _jacobians(net, t, x, jnp.asarray(_padded(moved))))
         for i, (rows, unknowns) in enumerate(components):
-            block = np.ix_(rows, unknowns)
-            affine[i] &= bool(np.allclose(J[i + 1][block], J[0][block], rtol=1e-12, atol=0.0))
+            pair = [0, i + 1]
+            linear = _moves_are_linear(J[pair], g[pair], moved[pair], unknowns)
+            affine[i] &= bool(np.all(linear[rows]))
     return affine
 
 

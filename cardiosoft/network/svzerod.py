@@ -50,6 +50,7 @@ from cardiosoft.network.heart_blocks import (
     ClosedLoopHeart,
 )
 from cardiosoft.network.network import Network, reduce_index
+from cardiosoft.network.ordering import order_nodes
 
 SUPPORTED_BLOCKS = (
     "BloodVessel",
@@ -368,6 +369,7 @@ def read(source, name: str | None = None) -> Model:
     model = Model(network, simulation, initial, name or "model")
     try:
         network = reduce_index(network, model.initial_states())
+        network = dataclasses.replace(network, order=order_nodes(network, model.initial_states()))
     except ValueError as error:
         raise UnsupportedModel(f"{model.name}: {error}") from None
     return dataclasses.replace(model, network=network)
