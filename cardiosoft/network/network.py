@@ -40,6 +40,21 @@ STEADY_NEWTON_STEPS = 30
 """Newton steps of the steady start-up (run once per model)."""
 
 
+class _Scalars(tuple):
+    """Scalars that a block reads as an array: an integer index is the scalar itself, with no
+    slice traced; a slice is their stack."""
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            items = tuple.__getitem__(self, i)
+            return jnp.stack(items) if items else jnp.zeros((0,), dtype=self.dtype)
+        return tuple.__getitem__(self, i)
+
+    @property
+    def dtype(self):
+        return self[0].dtype if len(self) else jnp.result_type(float)
+
+
 def _newton(g, w, steps, groups):
     """``steps`` Newton steps on ``g(w) = 0`` from ``w``; returns ``w`` and the size of one more
     step: as it is when ``groups`` is None, else its largest part relative to the largest
@@ -105,15 +120,17 @@ class Network(eqx.Module):
             yield self._block(i, offsets[i], x, z)
 
     def _block(self, i, offset, x, z):
-        """(block i, its states, its ports' P, its ports' Q); ``offset``: its first state."""
+        """(block i, its states, its ports' P, its ports' Q); ``offset``: its first state.
+        With ``z`` a list of scalars (:meth:`_ordered`), ``x`` is one too and all three are
+        :class:`_Scalars`."""
         b, n = self.blocks[i], self.n_nodes
         if isinstance(z, list):
-            P = jnp.stack([jnp.asarray(z[p], x.dtype) for p in b.ports])
-            Q = jnp.stack([jnp.asarray(z[n + p], x.dtype) for p in b.ports])
-        else:
-            ports = np.asarray(b.ports, dtype=int)
-            P, Q = z[:n][ports], z[n:][ports]
-        return b, x[offset : offset + b.n_states], P, Q
+            dtype = x[0].dtype if len(x) else jnp.result_type(float)
+            P = _Scalars([jnp.asarray(z[p], dtype) for p in b.ports])
+            Q = _Scalars([jnp.asarray(z[n + p], dtype) for p in b.ports])
+            return b, _Scalars(x[offset : offset + b.n_states]), P, Q
+        ports = np.asarray(b.ports, dtype=int)
+        return b, x[offset : offset + b.n_states], z[:n][ports], z[n:][ports]
 
     def residuals(self, t, x, z, steady: bool = False):
         """Every block's algebraic residuals, stacked (as many as ``z``)."""
@@ -124,7 +141,7 @@ class Network(eqx.Module):
     def rates(self, t, x, z, steady: bool = False):
         """Every block's state derivatives, stacked like ``x``."""
         parts = [b.rates(t, xb, P, Q, steady) for b, xb, P, Q in self._each(x, z)]
-        return jnp.concatenate(parts) if parts else x
+        return jnp.concatenate(parts) if parts else jnp.zeros((0,))
 
     def _algebraic(self, t, x, z, steady):
         """The equations that fix ``z``: the residuals, where the reduction has turned the
@@ -161,6 +178,8 @@ class Network(eqx.Module):
         ``1 + NEWTON_STEPS`` steps where they are not affine in their unknowns."""
         z: list = [0.0] * (2 * self.n_nodes)
         offsets = self._offsets()
+        dtype = jnp.result_type(float)
+        x = list(x)
         for stage in self.order:
             for u, v in stage.aliases:
                 z[u] = z[v]
@@ -178,8 +197,13 @@ class Network(eqx.Module):
                     out += [r[j] for j in rows]
                 return tuple(out)
 
-            u = tuple(jnp.asarray(z[i], x.dtype) for i in stage.unknowns)
-            for _ in range(1 if stage.affine else 1 + NEWTON_STEPS):
+            u = tuple(jnp.asarray(z[i], dtype) for i in stage.unknowns)
+            if stage.slopes is not None:  # affine, with slopes fixed by the wiring
+                r = g(*u)
+                u = tuple(v - a / c for v, a, c in zip(u, r, stage.slopes, strict=True))
+            for _ in range(
+                0 if stage.slopes is not None else 1 if stage.affine else 1 + NEWTON_STEPS
+            ):
                 if stage.scalar:  # a diagonal Jacobian: one derivative along every unknown
                     r, dr = jax.jvp(g, u, tuple(jnp.ones_like(v) for v in u))
                     u = tuple(v - a / b for v, a, b in zip(u, r, dr, strict=True))
@@ -232,7 +256,7 @@ class Network(eqx.Module):
     def vector_field(self, t, x, steady: bool = False):
         """``dx/dt`` at ``(t, x)``; ``steady`` uses the steady start-up's equations."""
         if self.order is not None and not steady:
-            return self.rates(t, x, self._ordered(t, x))
+            return self.rates(t, list(x), self._ordered(t, list(x)))
         return self.rates(t, x, self.node_values(t, x, steady), steady)
 
     def outputs(self, t, x, z) -> dict:

@@ -63,6 +63,10 @@ class Stage:
     scalar: bool
     affine: bool
     aliases: tuple[tuple[int, int], ...] = ()
+    slopes: tuple[float, ...] | None = None
+    """Each row's derivative in its unknown where every one is a constant of the wiring (the
+    same at every sampled point and for randomly scaled parameters, like the 1 of
+    ``P - law(V)``): the step is then a division by it, with no derivative traced."""
 
 
 def _points(net, x0, t, n, rng):
@@ -112,6 +116,7 @@ def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
     affine = _affine(net, x0, [([row_of[u] for u in c], c) for c in components], rng)
     owner = _row_owners(net, x0)
     alias = _aliases(jac, net, x0, pattern, match, rng)
+    slope = _constant_slopes(net, x0, match, rng)
     stages = []
     sorter.prepare()
     while sorter.is_active():  # the components whose predecessors are solved, stage by stage
@@ -127,8 +132,30 @@ def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
         unknowns = tuple(int(match[r]) for rows in grouped.values() for r in rows)
         scalar = all(len(components[c]) == 1 for c in ready)
         flag = all(affine[c] for c in ready)
-        stages.append(Stage(unknowns, owners, scalar, flag, copies))
+        rows = [r for group in grouped.values() for r in group]
+        given = scalar and flag and all(r in slope for r in rows)
+        steps = tuple(slope[r] for r in rows) if given else None
+        stages.append(Stage(unknowns, owners, scalar, flag, copies, steps))
     return tuple(stages)
+
+
+def _constant_slopes(net, x0, match, rng) -> dict[int, float]:
+    """``{row: dg_row/dz_u}`` for the rows whose derivative in their matched unknown u is one
+    number at every sampled point, with the network's parameters each scaled by a random
+    factor in [0.5, 1.5] at each point: a constant of the wiring, not of the values."""
+    m = 2 * net.n_nodes
+    seen: dict[int, float] = {}
+    varying: set[int] = set()
+    for t, x, z in _points(net, x0, 0.0, SPARSITY_POINTS, rng):
+        scaled = jax.tree.map(
+            lambda a: a * rng.uniform(0.5, 1.5) if eqx.is_inexact_array(a) else a, net
+        )
+        J = np.asarray(_jacobians(scaled, t, x, jnp.asarray(_padded(np.asarray(z)[None])))[0][0])
+        for r in range(m):
+            value = float(J[r, match[r]])
+            if not np.isfinite(value) or value == 0 or seen.setdefault(r, value) != value:
+                varying.add(r)
+    return {r: v for r, v in seen.items() if r not in varying}
 
 
 def _aliases(jac, net, x0, pattern, match, rng) -> dict[int, int]:
