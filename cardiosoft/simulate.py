@@ -138,6 +138,21 @@ def parser(prog: str | None = None):
         "compliance) would narrow it (linear over all the posterior's draws: two batched "
         "solves of them, about a minute more)",
     )
+    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, UNIT_SYSTEMS
+
+    model = p.add_argument_group("svZeroDSolver models (--scene model.json)")
+    model.add_argument(
+        "--pump-chamber",
+        metavar="NAME",
+        help="put the soft pump (--omega, --shortening, --pump; default the prototype) in "
+        "place of the model's chamber NAME",
+    )
+    model.add_argument(
+        "--units",
+        choices=tuple(UNIT_SYSTEMS),
+        help=f"with --pump-chamber: the model's units (default {DEFAULT_UNITS}; mmHg: mmHg, "
+        "ml, s; si: Pa, m^3, s), where the pump (SI inside) meets it",
+    )
     add_output_options(p, "summary.json, traces.csv, figure.png", plot="the figure")
     add_report_options(p)
     return p
@@ -419,6 +434,10 @@ def main(argv=None, prog: str | None = None) -> int:
         from cardiosoft.network.cli import simulate_model
 
         return simulate_model(args, console)
+    for option in ("pump_chamber", "units"):
+        if getattr(args, option) is not None:
+            flag = "--" + option.replace("_", "-")
+            return fail(ValueError(f"{flag}: only with an svZeroDSolver model (--scene *.json)"))
     out_dir = Path(args.out) if args.out else None
     posterior = every_draw = None
     try:

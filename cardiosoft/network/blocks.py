@@ -136,9 +136,9 @@ class BloodVessel(Block):
 
     def _drops(self, Q):
         """The resistance's pressure drop before the capacitor and after it."""
-        if self.resistor_first:
-            return _stenosis_drop(self.R, self.S, Q[0]), 0.0
-        return 0.0, _stenosis_drop(self.R, self.S, Q[1])
+        q = Q[0] if self.resistor_first else Q[1]
+        drop = _stenosis_drop(self.R, self.S, q) if self.nonlinear else self.R * q
+        return (drop, 0.0) if self.resistor_first else (0.0, drop)
 
     def _capacitor(self, x, P, Q):
         return x[0] if self.has_C else P[0] - self._drops(Q)[0]

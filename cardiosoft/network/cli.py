@@ -3,6 +3,10 @@ it. Prints each node's mean pressure and flow over the reported beat in the mode
 and, with ``--out DIR``, writes ``traces.csv`` (``time`` and one column per svZeroDSolver
 variable, under svZeroDSolver's names) and ``summary.json``.
 
+``--pump-chamber NAME`` puts the soft pump in place of the model's chamber NAME
+(:mod:`cardiosoft.network.pump_in_model`; ``--units`` the model's units, ``--omega``,
+``--shortening`` and ``--pump`` its design and surrogate) and prints its beat.
+
 Exit status: 0; 1 when the solve failed or its Newton did not converge; 2 on bad input (a
 model or an option this reader does not take, refused in one line).
 """
@@ -35,8 +39,19 @@ _SCENE_ONLY = (
 """Options of ``simulate`` that belong to the pump's scenes, with their defaults."""
 
 
+_PUMP_OPTIONS = ("omega", "shortening", "pump")
+"""Options of the pump's scenes that also set the soft pump of ``--pump-chamber``."""
+
+
 def _check_options(args) -> None:
+    placing = getattr(args, "pump_chamber", None) is not None
+    if getattr(args, "units", None) is not None and not placing:
+        raise ValueError(
+            "--units: only with --pump-chamber (a model alone is solved in its own units)"
+        )
     for name, default in _SCENE_ONLY:
+        if placing and name in _PUMP_OPTIONS:
+            continue
         if getattr(args, name, default) != default:
             raise ValueError(
                 f"--{name.replace('_', '-')} does not apply to an svZeroDSolver model; "
@@ -51,6 +66,7 @@ def simulate_model(args, console) -> int:
     from cardiosoft.console import fail
     from cardiosoft.files import check_writable_folder, refuse_overwrite, write_together
     from cardiosoft.network import read, simulate
+    from cardiosoft.network.pump_in_model import pump_flags, pump_metrics
 
     out_dir = Path(args.out) if args.out else None
     try:
@@ -59,7 +75,7 @@ def simulate_model(args, console) -> int:
             check_writable_folder(out_dir)
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
-        model = read(args.scene)
+        model = read(args.scene, pump=_placement(args))
     except OSError as err:
         return fail(ValueError(f"--scene {args.scene}: {err.strerror or err}"))
     except ValueError as err:  # an unsupported model or option, a broken JSON file
@@ -81,12 +97,35 @@ def simulate_model(args, console) -> int:
         console.fail(model.name, "the steady start-up's Newton did not converge")
     if not traces.solved:
         console.fail(model.name, "the solve failed, or the nodes' Newton did not converge")
+    placement = _placement(args)
+    pump = None if placement is None else pump_metrics(traces, placement, net.nodes)
+    for flag in [] if pump is None else pump_flags(pump):
+        console.flag(model.name, flag)
     if not args.quiet:
         print(_table(model, traces))
+        if pump is not None:
+            print(
+                f"soft pump in place of {placement.chamber} (Omega {placement.omega:g}, "
+                f"C {placement.shortening:g}), last beat: EDV {pump['edv_ml']:.1f} ml, "
+                f"ESV {pump['esv_ml']:.1f} ml, SV {pump['stroke_volume_ml']:.1f} ml, "
+                f"EF {pump['ejection_fraction']:.2f}, peak cable force "
+                f"{pump['peak_force_N']:.1f} N"
+            )
     if out_dir is not None:
         summary = {
             "model": model.name,
-            "units": "the model's own (svZeroDSolver files carry none)",
+            "units": "the model's own (svZeroDSolver files carry none)"
+            if placement is None
+            else f"{placement.units} (--units); pull:NAME in m and cable_force:NAME in N",
+            "pump": None
+            if placement is None
+            else {
+                "chamber": placement.chamber,
+                "omega": placement.omega,
+                "shortening": placement.shortening,
+                "surrogate": placement.surrogate,
+                **pump,
+            },
             "period": net.period,
             "beats": sim.cycles,
             "accuracy": args.accuracy or "default",
@@ -103,6 +142,18 @@ def simulate_model(args, console) -> int:
         for name in OUTPUT_FILES:
             console.say(f"wrote {out_dir / name}")
     return console.status()
+
+
+def _placement(args):
+    """The soft pump of ``--pump-chamber``, or None."""
+    if getattr(args, "pump_chamber", None) is None:
+        return None
+    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, PROTOTYPE, PumpPlacement
+
+    omega = PROTOTYPE[0] if args.omega is None else args.omega
+    shortening = PROTOTYPE[1] if args.shortening is None else args.shortening
+    units = args.units or DEFAULT_UNITS
+    return PumpPlacement(args.pump_chamber, units, omega, shortening, args.pump)
 
 
 def _table(model, traces) -> str:

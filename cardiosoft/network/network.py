@@ -40,6 +40,16 @@ STEADY_NEWTON_STEPS = 30
 """Newton steps of the steady start-up (run once per model)."""
 
 
+def _scalar(value, dtype):
+    """An unknown as a scalar array: a literal (an unsolved zero) converted, a traced one kept."""
+    return value if isinstance(value, jax.Array) else jnp.asarray(value, dtype)
+
+
+def _minus(value, step):
+    """``value - step``, with no operation traced for an unsolved (literal) zero."""
+    return -step if isinstance(value, float) and value == 0.0 else value - step
+
+
 class _Scalars(tuple):
     """Scalars that a block reads as an array: an integer index is the scalar itself, with no
     slice traced; a slice is their stack."""
@@ -126,8 +136,8 @@ class Network(eqx.Module):
         b, n = self.blocks[i], self.n_nodes
         if isinstance(z, list):
             dtype = x[0].dtype if len(x) else jnp.result_type(float)
-            P = _Scalars([jnp.asarray(z[p], dtype) for p in b.ports])
-            Q = _Scalars([jnp.asarray(z[n + p], dtype) for p in b.ports])
+            P = _Scalars([_scalar(z[p], dtype) for p in b.ports])
+            Q = _Scalars([_scalar(z[n + p], dtype) for p in b.ports])
             return b, _Scalars(x[offset : offset + b.n_states]), P, Q
         ports = np.asarray(b.ports, dtype=int)
         return b, x[offset : offset + b.n_states], z[:n][ports], z[n:][ports]
@@ -197,10 +207,13 @@ class Network(eqx.Module):
                     out += [r[j] for j in rows]
                 return tuple(out)
 
-            u = tuple(jnp.asarray(z[i], dtype) for i in stage.unknowns)
+            u = tuple(_scalar(z[i], dtype) for i in stage.unknowns)
             if stage.slopes is not None:  # affine, with slopes fixed by the wiring
                 r = g(*u)
-                u = tuple(v - a / c for v, a, c in zip(u, r, stage.slopes, strict=True))
+                u = tuple(
+                    _minus(z[i], a if c == 1.0 else a / c)
+                    for i, a, c in zip(stage.unknowns, r, stage.slopes, strict=True)
+                )
             for _ in range(
                 0 if stage.slopes is not None else 1 if stage.affine else 1 + NEWTON_STEPS
             ):

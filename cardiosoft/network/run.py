@@ -131,7 +131,9 @@ def simulate(model: Model, accuracy: str = "default", *, rtol=None, variants=Non
         jumps = _jump_times(first, t_all[-1])
         for stiff in (False, True):
             base = preset(accuracy, stiff=stiff)
-            config = SolverConfig(base.solver, rtol, atol, base.pcoeff, base.icoeff, base.max_steps)
+            # the preset's step budget is a beat's: a run of many beats gets it for each
+            budget = base.max_steps * sim.cycles
+            config = SolverConfig(base.solver, rtol, atol, base.pcoeff, base.icoeff, budget)
             zs, internal, converged, result, steps = each(_run, 0, 0, None, None, None, None)(
                 net, x0, float(t_all[-1]), ts, jumps, config
             )

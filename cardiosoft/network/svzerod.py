@@ -51,6 +51,7 @@ from cardiosoft.network.heart_blocks import (
 )
 from cardiosoft.network.network import Network, reduce_index
 from cardiosoft.network.ordering import order_nodes
+from cardiosoft.network.pump_in_model import PumpPlacement, soft_pump
 
 SUPPORTED_BLOCKS = (
     "BloodVessel",
@@ -249,8 +250,9 @@ def _boundary_condition(bc: dict):
     return name, (lambda ports: _one_port(cls, name, kwargs, ports)), tables, False
 
 
-def read(source, name: str | None = None) -> Model:
-    """Read an svZeroDSolver model from a path or an already parsed dict."""
+def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> Model:
+    """Read an svZeroDSolver model from a path or an already parsed dict; ``pump``: the soft
+    pump in place of one of its chambers (:mod:`cardiosoft.network.pump_in_model`)."""
     if isinstance(source, str | Path):
         path = Path(source)
         with path.open() as f:
@@ -350,8 +352,11 @@ def read(source, name: str | None = None) -> Model:
         )
     period = period or given_period or 1.0
     simulation = _simulation(sim)
+    if pump is not None:
+        factories[pump.chamber] = _pump_factory(pump, chambers, config, float(period), simulation)
     for chamber in chambers:
-        factories[chamber["name"]] = _chamber(chamber, float(period), simulation)
+        if pump is None or chamber["name"] != pump.chamber:
+            factories[chamber["name"]] = _chamber(chamber, float(period), simulation)
     named = {x for c in connections for x in c}
     if named - set(factories):
         raise UnsupportedModel(
@@ -404,6 +409,32 @@ def _chamber(chamber: dict, period: float, simulation: Simulation):
     return lambda ports: _two_ports(
         Chamber, name, {"p": p, "activation": activation, "law": kind, "has_L": has_L}, ports
     )
+
+
+def _pump_factory(pump: PumpPlacement, chambers, config: dict, period: float, simulation):
+    """The factory of the soft pump in place of the chamber ``pump.chamber``; the pump is
+    built (its design and the model's units checked) at once."""
+    names = [c["name"] for c in chambers]
+    if pump.chamber not in names:
+        have = ", ".join(names) if names else "none"
+        raise UnsupportedModel(
+            f"--pump-chamber {pump.chamber}: the model has no such chamber (its chambers: {have})"
+        )
+    if simulation.steady_initial:
+        raise UnsupportedModel(
+            f"--pump-chamber {pump.chamber} with steady_initial: svZeroDSolver defines no steady "
+            "start-up for the pump; set steady_initial to false"
+        )
+    start = float(config.get("initial_condition", {}).get(f"Vc:{pump.chamber}", 0.0))
+    block = soft_pump(pump, (0, 0), period, start)
+
+    def make(ports):
+        ins, outs = ports
+        if len(ins) != 1 or len(outs) != 1:
+            raise UnsupportedModel(f"--pump-chamber {pump.chamber}: needs one inlet and one outlet")
+        return dataclasses.replace(block, ports=(ins[0], outs[0]))
+
+    return make
 
 
 def _simulation(sim: dict) -> Simulation:
