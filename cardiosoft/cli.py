@@ -39,6 +39,7 @@ COMMANDS = {
     "sweep": ("cardiosoft.sweep.cli", "design-space maps over Omega x C x afterload x bpm"),
     "stress": ("cardiosoft.stress.cli", "the hard-case suite"),
     "geometry": ("cardiosoft.geometry.cli", "the geometrical model's Fig. 7(a) table"),
+    "export": ("cardiosoft.network.export", "write a closed-loop scene as an svZeroDSolver model"),
 }
 """Subcommand: (the module whose ``main(argv, prog)`` it runs, one line of help)."""
 

@@ -5,13 +5,19 @@ flows ``z = (P, Q)`` (algebraic). Every block contributes residuals on ``z``; to
 many as the unknowns of ``z`` (svZeroDSolver's count, less the internal variables that are
 states here). The field solves them for ``z`` at each evaluation and returns the states' rates:
 
-- a network whose residuals are affine in ``z`` (no stenosis, no valve) takes one Newton step from
-  ``z = 0``, which is exact: a forward-mode Jacobian of the residuals (m columns, m = 2 x nodes)
-  and one dense LU solve of size m;
-- otherwise Newton takes ``NEWTON_STEPS`` more steps from there (as many LU solves): a fixed
-  count, so that the field is one straight-line program whose derivative is exact. The run
-  checks, at its output times, that one more step would move ``z`` by less than
-  ``NEWTON_TOLERANCE`` relative (:meth:`Network.newton_converged`).
+- in the solving order found when the network is built (:attr:`Network.order`,
+  :mod:`cardiosoft.network.ordering`): stage by stage, most unknowns one division each (a
+  pressure set by a capacitor, a flow by a valve's law at pressures already known), a coupled
+  group a small dense Newton. The closed loop costs then what its written-out field costs;
+- without one (a network whose index was reduced, below): one Newton step from ``z = 0`` on all
+  of them, exact where the residuals are affine in ``z`` (a forward-mode Jacobian of m columns,
+  m = 2 x nodes, and one dense LU solve of size m), and ``NEWTON_STEPS`` more where they are
+  not (a stenosis, a valve).
+
+Either way the steps are a fixed count, so that the field is one straight-line program whose
+derivative is exact. A run checks, at its output times, that one more Newton step on all the
+equations would move ``z`` by less than ``NEWTON_TOLERANCE`` relative
+(:meth:`Network.newton_converged`).
 
 The algebraic part must be uniquely solvable for ``z`` given ``x`` (an index-1 DAE). Where a
 source pins a state (a capacitor on a pressure source, an inductor in series with a flow source:
@@ -46,7 +52,7 @@ def _scalar(value, dtype):
 
 
 def _minus(value, step):
-    """``value - step``, with no operation traced for an unsolved (literal) zero."""
+    """``value - step``, with no subtraction traced from an unsolved (literal) zero."""
     return -step if isinstance(value, float) and value == 0.0 else value - step
 
 
@@ -189,7 +195,7 @@ class Network(eqx.Module):
         z: list = [0.0] * (2 * self.n_nodes)
         offsets = self._offsets()
         dtype = jnp.result_type(float)
-        x = list(x)
+        x = list(x)  # the states as scalars too
         for stage in self.order:
             for u, v in stage.aliases:
                 z[u] = z[v]
@@ -269,7 +275,8 @@ class Network(eqx.Module):
     def vector_field(self, t, x, steady: bool = False):
         """``dx/dt`` at ``(t, x)``; ``steady`` uses the steady start-up's equations."""
         if self.order is not None and not steady:
-            return self.rates(t, list(x), self._ordered(t, list(x)))
+            scalars = list(x)
+            return self.rates(t, scalars, self._ordered(t, scalars))
         return self.rates(t, x, self.node_values(t, x, steady), steady)
 
     def outputs(self, t, x, z) -> dict:

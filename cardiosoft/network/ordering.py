@@ -115,15 +115,22 @@ def order_nodes(net, x0, seed: int = 0) -> tuple[Stage, ...] | None:
     components = [[int(u) for u in np.flatnonzero(label == c)] for c in range(n_comp)]
     affine = _affine(net, x0, [([row_of[u] for u in c], c) for c in components], rng)
     owner = _row_owners(net, x0)
-    alias = _aliases(jac, net, x0, pattern, match, rng)
+    # a copy of an unknown solved in an earlier component (not one coupled with it)
+    single = {c[0] for c in components if len(c) == 1}
+    alias = {
+        u: v
+        for u, v in _aliases(jac, net, x0, pattern, match, rng).items()
+        if u in single and label[u] != label[v]
+    }
     slope = _constant_slopes(net, x0, match, rng)
     stages = []
     sorter.prepare()
     while sorter.is_active():  # the components whose predecessors are solved, stage by stage
         ready = sorted(sorter.get_ready())
         sorter.done(*ready)
-        copies = tuple((u, alias[u]) for c in ready for u in components[c] if u in alias)
-        ready = [c for c in ready if components[c][0] not in alias]
+        copied = [c for c in ready if components[c][0] in alias]
+        copies = tuple((components[c][0], alias[components[c][0]]) for c in copied)
+        ready = [c for c in ready if c not in copied]
         grouped: dict[int, list[int]] = {}  # rows of one block together
         for c in ready:
             for u in components[c]:

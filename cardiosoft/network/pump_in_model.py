@@ -56,6 +56,12 @@ class PumpPlacement:
     shortening: float = PROTOTYPE[1]
     surrogate: str | None = None
     """A shipped surrogate's name or an artifact's path (default: the shipped default)."""
+    shape: str = PULL["shape"]
+    pull_fraction: float = PULL["pull_fraction"]
+    hold_fraction: float = PULL["hold_fraction"]
+    release_fraction: float = PULL["release_fraction"]
+    onset: float = 0.0
+    """The start of the pull as a fraction of the period."""
 
     def __post_init__(self):
         if self.units not in UNIT_SYSTEMS:
@@ -128,9 +134,9 @@ def soft_pump(placement: PumpPlacement, ports, period: float, start_volume: floa
         )
     pump = load(placement.surrogate)
     stroke = placement.shortening * pump.cable_length(placement.omega)
-    pull = CablePull(stroke, period, **{k: v for k, v in PULL.items() if k != "shape"},
-                     shape=PULL["shape"])  # fmt: skip
-    law = PumpChamber(pump, placement.omega, pull)
+    fractions = (placement.pull_fraction, placement.hold_fraction, placement.release_fraction)
+    pull = CablePull(stroke, period, *fractions, shape=placement.shape)
+    law = PumpChamber(pump, placement.omega, pull, placement.onset)
     return SoftPump(placement.chamber, tuple(ports), law, pressure_unit, volume_unit)
 
 

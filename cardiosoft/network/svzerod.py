@@ -49,9 +49,11 @@ from cardiosoft.network.heart_blocks import (
     Chamber,
     ClosedLoopHeart,
 )
+from cardiosoft.network.loop_blocks import LawValve
 from cardiosoft.network.network import Network, reduce_index
 from cardiosoft.network.ordering import order_nodes
 from cardiosoft.network.pump_in_model import PumpPlacement, soft_pump
+from cardiosoft.valves import ArctanValve
 
 SUPPORTED_BLOCKS = (
     "BloodVessel",
@@ -72,6 +74,9 @@ SUPPORTED_BLOCKS = (
     "LinearElastanceChamber",
 )
 """svZeroDSolver block types the reader takes."""
+EXTENSION_BLOCKS = ("ArctanValve", "SoftPump")
+"""cardiosoft's own blocks, which ``cardiosoft export --svzerod`` writes and the reader takes
+(a valve and a chamber; svZeroDSolver itself has neither)."""
 
 UNSUPPORTED_OPTIONS = (
     "use_cycle_to_cycle_error",
@@ -329,15 +334,23 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
         period = _closed_loop(block, period, connections, factories, heart_inlets)
     for valve in config.get("valves") or []:
         vname, kind = valve["name"], valve["type"]
-        numbers = {"ValveTanh": ("Rmax", "Rmin", "Steepness"), "PiecewiseValve": ("Rmax", "Rmin")}
+        numbers = {
+            "ValveTanh": ("Rmax", "Rmin", "Steepness"),
+            "PiecewiseValve": ("Rmax", "Rmin"),
+            "ArctanValve": ("Rmax", "Rmin", "sharpness"),
+        }
         if kind not in numbers:
             raise UnsupportedModel(f"block type {kind!r} (valve {vname}) is not supported")
         ends = ("upstream_block", "downstream_block")
         p = _values(valve.get("params", {}), f"{kind} {vname}", (*numbers[kind], *ends))
         connections += [(p["upstream_block"], vname), (vname, p["downstream_block"])]
         kwargs = {k.lower() if k == "Steepness" else k: p[k] for k in numbers[kind]}
-        cls = ValveTanh if kind == "ValveTanh" else PiecewiseValve
-        kwargs = _arrays(kwargs, kwargs)
+        if kind == "ArctanValve":  # cardiosoft's extension: Regazzoni's law
+            law = ArctanValve(p["Rmin"], p["Rmax"], p["sharpness"])
+            cls, kwargs = LawValve, {"law": law}
+        else:
+            cls = ValveTanh if kind == "ValveTanh" else PiecewiseValve
+            kwargs = _arrays(kwargs, kwargs)
         factories[vname] = lambda ports, vname=vname, kw=kwargs, cls=cls: _two_ports(
             cls, vname, kw, ports
         )
@@ -355,7 +368,12 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
     if pump is not None:
         factories[pump.chamber] = _pump_factory(pump, chambers, config, float(period), simulation)
     for chamber in chambers:
-        if pump is None or chamber["name"] != pump.chamber:
+        if chamber.get("type") == "SoftPump":  # cardiosoft's extension block
+            placed = _placement(chamber)
+            factories[placed.chamber] = _pump_factory(
+                placed, chambers, config, float(period), simulation
+            )
+        elif pump is None or chamber["name"] != pump.chamber:
             factories[chamber["name"]] = _chamber(chamber, float(period), simulation)
     named = {x for c in connections for x in c}
     if named - set(factories):
@@ -409,6 +427,16 @@ def _chamber(chamber: dict, period: float, simulation: Simulation):
     return lambda ports: _two_ports(
         Chamber, name, {"p": p, "activation": activation, "law": kind, "has_L": has_L}, ports
     )
+
+
+def _placement(chamber: dict) -> PumpPlacement:
+    """The pump of a ``SoftPump`` chamber entry (:mod:`cardiosoft.network.export`)."""
+    fields = {f.name for f in dataclasses.fields(PumpPlacement)} - {"chamber"}
+    values = {k: v for k, v in chamber.get("values", {}).items() if not k.startswith("_")}
+    unknown = sorted(set(values) - fields)
+    if unknown:
+        raise UnsupportedModel(f"SoftPump {chamber['name']}: unknown parameter {unknown[0]!r}")
+    return PumpPlacement(chamber["name"], **values)
 
 
 def _pump_factory(pump: PumpPlacement, chambers, config: dict, period: float, simulation):
