@@ -75,7 +75,8 @@ def simulate_model(args, console) -> int:
             check_writable_folder(out_dir)
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
-        model = read(args.scene, pump=_placement(args))
+        placement = _placement(args)
+        model = read(args.scene, pump=placement)
     except OSError as err:
         return fail(ValueError(f"--scene {args.scene}: {err.strerror or err}"))
     except ValueError as err:  # an unsupported model or option, a broken JSON file
@@ -97,7 +98,6 @@ def simulate_model(args, console) -> int:
         console.fail(model.name, "the steady start-up's Newton did not converge")
     if not traces.solved:
         console.fail(model.name, "the solve failed, or the nodes' Newton did not converge")
-    placement = _placement(args)
     pump = None if placement is None else pump_metrics(traces, placement, net.nodes)
     for flag in [] if pump is None else pump_flags(pump):
         console.flag(model.name, flag)

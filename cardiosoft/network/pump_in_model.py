@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
@@ -118,9 +119,9 @@ def soft_pump(placement: PumpPlacement, ports, period: float, start_volume: floa
     initial volume (model units), checked against :data:`CHAMBER_VOLUMES`. Raises
     ``ValueError`` on a start volume that cannot be in the stated units."""
     pressure_unit, volume_unit, _, volume_name = UNIT_SYSTEMS[placement.units]
-    litres = start_volume * volume_unit
+    volume = start_volume * volume_unit  # m^3
     lo, hi = CHAMBER_VOLUMES
-    if not lo <= litres <= hi:
+    if not lo <= volume <= hi:
         others = [
             f"{start_volume * UNIT_SYSTEMS[u][1] / ml:.3g} ml in {u}"
             for u in UNIT_SYSTEMS
@@ -129,7 +130,7 @@ def soft_pump(placement: PumpPlacement, ports, period: float, start_volume: floa
         hint = f"; it would be {' or '.join(others)}" if others else ""
         raise ValueError(
             f"Vc:{placement.chamber} = {start_volume:g} (the model's start volume) is "
-            f"{litres / ml:.3g} ml in {placement.units} ({volume_name}), not a heart chamber's "
+            f"{volume / ml:.3g} ml in {placement.units} ({volume_name}), not a heart chamber's "
             f"({lo / ml:g} to {hi / ml:g} ml){hint}: pass the model's units with --units"
         )
     pump = load(placement.surrogate)
@@ -144,8 +145,6 @@ def pump_metrics(traces, placement: PumpPlacement, nodes) -> dict:
     """The pump's beat from ``traces`` (the reported samples): its end-diastolic and
     end-systolic volumes and stroke volume (ml), ejection fraction, peak cable force (N), and
     its lowest and highest pressure (mmHg; ``nodes``: the network's, to find its inlet)."""
-    import numpy as np
-
     name = placement.chamber
     pressure_unit, volume_unit = UNIT_SYSTEMS[placement.units][:2]
     volume = np.asarray(traces.values[f"Vc:{name}"]) * volume_unit
