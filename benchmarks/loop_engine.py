@@ -28,8 +28,8 @@ import json, sys, time
 import jax
 jax.config.update("jax_enable_x64", True)
 import cardiosoft as cs
-from cardiosoft.loop_batch import solve_loop
-from cardiosoft.loop_scene import loop_circuit
+from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_scene import loop_circuit
 from cardiosoft.pump import load
 
 name, engine = sys.argv[1], sys.argv[2]
@@ -56,7 +56,7 @@ import dataclasses, json, sys
 import diffrax, jax, numpy as np
 jax.config.update("jax_enable_x64", True)
 import cardiosoft as cs
-from cardiosoft.loop_batch import solve_loop
+from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.solve import preset
 
 scene = cs.load_scene(sys.argv[1])

@@ -1,7 +1,7 @@
 """Reading a scene file: its numeric keys and its tables, every error naming file and key.
 
 Shared by the pump scenes (:mod:`cardiosoft.scene`) and the closed-loop scenes
-(:mod:`cardiosoft.loop_scene`).
+(:mod:`cardiosoft.network.loop_scene`).
 """
 
 from __future__ import annotations

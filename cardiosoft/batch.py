@@ -94,8 +94,8 @@ from cardiosoft.circuit import (
     WallContact,
 )
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
-from cardiosoft.loop_batch import solve_loop
-from cardiosoft.loop_scene import LoopScene
+from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.metrics import beat_metrics, trapezoid
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
@@ -357,9 +357,9 @@ def solve_beats(
     **Arguments:**
 
     - ``scene``: a :class:`~cardiosoft.scene.Scene`, a shipped scene's name or a scene file.
-      A closed-loop scene (:class:`~cardiosoft.loop_scene.LoopScene`) goes to
-      :func:`cardiosoft.loop_batch.solve_loop` (``omega`` and ``shortening`` set every pump
-      of it; its metrics are :class:`~cardiosoft.loop_batch.LoopMetrics`).
+      A closed-loop scene (:class:`~cardiosoft.network.loop_scene.LoopScene`) goes to
+      :func:`cardiosoft.network.loop_batch.solve_loop` (``omega`` and ``shortening`` set every pump
+      of it; its metrics are :class:`~cardiosoft.network.loop_batch.LoopMetrics`).
     - ``omega``, ``shortening``: the design (dimensionless); ``bpm``: beats per minute;
       ``afterload``: column head (Pa) of a water-column scene. Scalars or 1-D arrays, broadcast
       to one batch axis; ``None`` keeps the scene's value(s).
@@ -417,7 +417,7 @@ def solve_beats(
 def _solve_loop_scene(
     scene, omega, shortening, bpm, afterload, beats, save, steady, energy, pump, config
 ) -> BeatSolution:
-    """:func:`solve_beats` of a closed-loop scene (:func:`cardiosoft.loop_batch.solve_loop`)."""
+    """:func:`solve_beats` of a closed-loop scene (:func:`cardiosoft.network.loop_batch.solve_loop`)."""
     if afterload is not None:
         raise ValueError(f"afterload: scene {scene.name} is a closed loop, with no column head")
     if energy:

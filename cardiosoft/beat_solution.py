@@ -1,6 +1,6 @@
 """What a batch solve returns, and what its two kinds share: the pump scenes'
 (:func:`cardiosoft.batch.solve_beats`) and the closed loops'
-(:func:`cardiosoft.loop_batch.solve_loop`).
+(:func:`cardiosoft.network.loop_batch.solve_loop`).
 
 :class:`BeatSolution`, the options both take (:data:`SAVE_MODES`, :data:`STEADY_METHODS`,
 :func:`check_solve_options`), the members broadcast to one batch axis
@@ -43,7 +43,7 @@ class BeatSolution(eqx.Module):
     - ``members``: the member values, ``{"omega", "shortening", "bpm", "afterload"}`` (the
       afterload, a column head in Pa, is NaN for a Windkessel scene).
     - ``metrics``: the last beat's :class:`~cardiosoft.metrics.BeatMetrics` (None with
-      ``save="state"``); a closed loop's :class:`~cardiosoft.loop_batch.LoopMetrics`.
+      ``save="state"``); a closed loop's :class:`~cardiosoft.network.loop_batch.LoopMetrics`.
     - ``traces``: with ``save="traces"``, the last beat: ``time`` (s, from 0 to the period),
       ``volume`` and the other states, and every signal of :meth:`PumpCircuit.signals`;
       ``None`` with ``save="metrics"`` or ``"state"``.

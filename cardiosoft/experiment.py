@@ -15,9 +15,9 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.batch import default_config, solve_beats, solve_static
-from cardiosoft.loop_batch import loop_config
-from cardiosoft.loop_results import configure_loop, run_loop
-from cardiosoft.loop_scene import LoopScene
+from cardiosoft.network.loop_batch import loop_config
+from cardiosoft.network.loop_results import configure_loop, run_loop
+from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.pump import PumpSurrogate, check_pump_name, load
 from cardiosoft.results import RunResult, member_results
 from cardiosoft.scene import ACCURACY, ADDABLE_EFFECTS, RANGES, Scene, load_scene
@@ -115,7 +115,7 @@ def run(
 
     - ``scene``: a shipped scene name, a path to a scene file, or a :class:`Scene`; a
       closed-loop scene (``heart``, ``soft-lv``, ``soft-rv``, ``tah``) is run by
-      :func:`cardiosoft.loop_results.run_loop` (``omega`` and ``shortening`` set every pump).
+      :func:`cardiosoft.network.loop_results.run_loop` (``omega`` and ``shortening`` set every pump).
     - ``omega``: helix parameter, [0, 6]; ``shortening``: C, [0, 0.65].
     - ``bpm``: beats per minute, (0, 300].
     - ``afterload``: column head(s) in mmHg, [0, 150] (water-column scenes).
@@ -186,7 +186,7 @@ def run_designs(
     if isinstance(scene, LoopScene):
         raise ValueError(
             f"scene {scene.name} is a closed loop: give its pumps' designs as members of "
-            "cardiosoft.loop_batch.solve_loop(members={'lv.omega': ...}) or run() one design"
+            "cardiosoft.network.loop_batch.solve_loop(members={'lv.omega': ...}) or run() one design"
         )
     designs = [tuple(d) for d in designs]
     if not designs or any(len(d) != 2 for d in designs):

@@ -165,7 +165,7 @@ def ensemble_run(
     ``config`` as in :func:`cardiosoft.batch.solve_beats`; beat after beat, the draws get at
     least :data:`ENSEMBLE_MAX_BEATS` beats to reach their steady state."""
     from cardiosoft.batch import solve_beats, solve_static
-    from cardiosoft.loop_scene import LoopScene
+    from cardiosoft.network.loop_scene import LoopScene
 
     if isinstance(scene, LoopScene):
         raise ValueError(

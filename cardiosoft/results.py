@@ -12,8 +12,8 @@ import math
 import numpy as np
 
 from cardiosoft.batch import BeatSolution, StaticSolution
-from cardiosoft.loop_records import loop_summary_records
-from cardiosoft.loop_scene import LoopScene
+from cardiosoft.network.loop_records import loop_summary_records
+from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import Domain
 from cardiosoft.scene import Scene
@@ -267,7 +267,7 @@ def member_results(
 
 def summary_records(result: RunResult) -> list[dict]:
     """One JSON-ready record per member, in user units (``summary.json``); a closed loop's by
-    :func:`cardiosoft.loop_records.loop_summary_records`."""
+    :func:`cardiosoft.network.loop_records.loop_summary_records`."""
     if isinstance(result.scene, LoopScene):
         return loop_summary_records(result)
     records = []

@@ -47,7 +47,7 @@ from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import BPM_RANGE, SHAPES
 from cardiosoft.circulation import AtrialSource, Bench, Tube, WaterColumn, Windkessel3
-from cardiosoft.loop_scene import LoopScene, parse_loop_scene
+from cardiosoft.network.loop_scene import LoopScene, parse_loop_scene
 from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, check_pump_name
 from cardiosoft.solve import ACCURACY_PRESETS
 from cardiosoft.units import ml_per_mmHg, mm, mmHg, mmHg_s_per_ml
@@ -139,7 +139,7 @@ ADDABLE_EFFECTS = ("cable_slack", "wall_contact")
 (``--add-effect``)."""
 SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")
 LOOP_SCENE_NAMES = ("heart", "soft-lv", "soft-rv", "tah")
-"""The shipped closed-loop scenes (``kind = "closed_loop"``, :mod:`cardiosoft.loop_scene`)."""
+"""The shipped closed-loop scenes (``kind = "closed_loop"``, :mod:`cardiosoft.network.loop_scene`)."""
 ACCURACY = ACCURACY_PRESETS
 
 
@@ -497,7 +497,7 @@ def _validated(scene: Scene) -> Scene:
 def load_scene(name_or_path, pump=None) -> Scene | LoopScene:
     """A shipped scene by name (:data:`SCENE_NAMES`, :data:`LOOP_SCENE_NAMES`) or a scene file
     by path; a closed-loop file (``kind = "closed_loop"``) gives a
-    :class:`~cardiosoft.loop_scene.LoopScene`. ``pump`` runs another surrogate than the file's
+    :class:`~cardiosoft.network.loop_scene.LoopScene`. ``pump`` runs another surrogate than the file's
     own (module docstring: a scene calibrated per pump needs its numbers for it)."""
     text_name = str(name_or_path)
     if text_name in SCENE_NAMES + LOOP_SCENE_NAMES:

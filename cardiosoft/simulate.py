@@ -184,7 +184,7 @@ _CIRCULATION_COLUMNS = (
 
 
 def _is_loop(scene) -> bool:
-    from cardiosoft.loop_scene import LoopScene
+    from cardiosoft.network.loop_scene import LoopScene
 
     return isinstance(scene, LoopScene)
 
@@ -218,7 +218,7 @@ def _table(records, scene, paper, *, bands: bool = False) -> str:
     from cardiosoft.console import fmt, table
 
     if _is_loop(scene):
-        from cardiosoft.loop_records import loop_table
+        from cardiosoft.network.loop_records import loop_table
 
         return loop_table(records)
     columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
@@ -281,7 +281,7 @@ def _write_traces(path: Path, result) -> None:
         for head, key, scale in _TRACE_COLUMNS
     ]
     if _is_loop(result.scene):
-        from cardiosoft.loop_records import loop_trace_columns
+        from cardiosoft.network.loop_records import loop_trace_columns
 
         columns = loop_trace_columns(result.members[0].traces)
     with open(path, "w", newline="") as f:

@@ -247,7 +247,7 @@ PERIODIC_SCALES = {
     "relaxation": ml,  # the shell dashpot's volume
     "pc": mmHg,
     "pa": mmHg,
-    "pressure": mmHg,  # a vessel compartment's (cardiosoft.heart.Vessel)
+    "pressure": mmHg,  # a vessel compartment's (cardiosoft.network.loop_components.Vessel)
 }
 """State leaves compared from beat to beat, with the unit of the steady-state tolerance (ml,
 ml/s, mmHg). Accumulators (``supplied_volume``, ``drained_volume``) grow every beat and are not

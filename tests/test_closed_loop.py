@@ -22,15 +22,15 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import cardiosoft as cs
-from cardiosoft.heart import Activation
-from cardiosoft.loop_results import (
+from cardiosoft.network.loop_components import Activation
+from cardiosoft.network.loop_results import (
     LA_CONGESTION,
     NATIVE_PULMONARY_SHARE,
     RA_CONGESTION,
     loop_flags,
     loop_member_results,
 )
-from cardiosoft.loop_scene import LoopScene, loop_circuit
+from cardiosoft.network.loop_scene import LoopScene, loop_circuit
 from cardiosoft.pump import Domain, load
 from cardiosoft.units import ml, mmHg
 from cardiosoft.valves import ArctanValve
@@ -523,7 +523,7 @@ def test_member_the_explicit_solver_runs_out_on_is_solved_implicitly():
     given explicitly, the stiff member reports that it ran out of steps."""
     import diffrax
 
-    from cardiosoft.loop_batch import loop_config, solve_loop
+    from cardiosoft.network.loop_batch import loop_config, solve_loop
 
     scene = cs.load_scene("tah")
     members = {

@@ -14,7 +14,7 @@ import pytest
 
 from cardiosoft.design import cli
 from cardiosoft.design.loop import CO_WEIGHT, PRESSURE_WEIGHT, loop_free, optimise_loop
-from cardiosoft.loop_batch import solve_loop
+from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.scene import load_scene
 from cardiosoft.units import mmHg
 

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 import cardiosoft as cs
-from cardiosoft.loop_batch import solve_loop
-from cardiosoft.loop_scene import loop_circuit
+from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_scene import loop_circuit
 from cardiosoft.network import read
 from cardiosoft.network.closed_loop import flat_state, loop_order
 from cardiosoft.network.ordering import order_nodes

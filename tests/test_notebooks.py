@@ -30,7 +30,7 @@ import nbformat
 import pytest
 
 import cardiosoft as cs
-from cardiosoft.loop_scene import loop_circuit
+from cardiosoft.network.loop_scene import loop_circuit
 from cardiosoft.pump import DEFAULT_ARTIFACT
 from cardiosoft.units import ml
 

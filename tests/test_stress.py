@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 
 from cardiosoft import stress
-from cardiosoft.loop_batch import SideMetrics
-from cardiosoft.loop_results import loop_flags
+from cardiosoft.network.loop_batch import SideMetrics
+from cardiosoft.network.loop_results import loop_flags
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import Domain
 from cardiosoft.results import MemberResult, flags
@@ -480,7 +480,7 @@ def test_closed_loop_case_runs_alone():
     assert case.id == "closed_loop/tah/180bpm/lv:Omega=0,C=0.01;rv:Omega=6,C=0.65"
     assert case.bpm == 180.0 and case.shortening == 0.01
     code = case.reproduce()
-    assert code.startswith("from cardiosoft.loop_batch import solve_loop; solve_loop(")
+    assert code.startswith("from cardiosoft.network.loop_batch import solve_loop; solve_loop(")
     members = eval(code.split("members=")[1].split(", save=")[0])  # the solve is not run here
     assert members == dict(case.numbers) and set(members) == set(batch.members())
 

@@ -353,7 +353,7 @@ def main(argv=None, prog: str | None = None) -> int:
     jax.config.update("jax_enable_x64", True)
     from cardiosoft.design.optimiser import optimise
     from cardiosoft.files import refuse_overwrite
-    from cardiosoft.loop_scene import LoopScene
+    from cardiosoft.network.loop_scene import LoopScene
     from cardiosoft.scene import load_scene
 
     console = Console(quiet=args.quiet, strict=args.strict)

@@ -20,7 +20,7 @@ pressure, and a target is reached within one unit (the issue's "within 1 mmHg").
 periodic steady state a closed loop's outputs are equal on both sides, so one output target
 serves both pumps; the two atrial pressures say where the loop's blood sits.
 
-**The method.** Every evaluation is one call of :func:`cardiosoft.loop_batch.solve_loop` on a
+**The method.** Every evaluation is one call of :func:`cardiosoft.network.loop_batch.solve_loop` on a
 batch of ``d + 1`` members (``d`` free variables), the periodic steady state by Newton
 shooting. Beat after beat from rest takes 50-150 beats on ``tah`` (the systemic veins'
 compliance of 60 ml/mmHg leaves a slow mode) and stops 0.01-0.03 mmHg from the orbit in the
@@ -33,7 +33,7 @@ left-atrial pressure, a third of what a difference step changes; shooting's batc
 2. from the grid's best, :func:`scipy.optimize.least_squares` (trust-region reflective, in the
    unit box), its Jacobian from forward differences of step :data:`FD_STEP` (in the unit box)
    taken in the same batched call as the point itself;
-3. the answer's records and flags (:func:`cardiosoft.loop_results.loop_member_results`) from
+3. the answer's records and flags (:func:`cardiosoft.network.loop_results.loop_member_results`) from
    the same orbit, sampled.
 
 **What cannot be reached** is measured, not guessed: every design evaluated is kept, and for
@@ -54,8 +54,8 @@ import time
 import numpy as np
 
 from cardiosoft._validate import check_range
-from cardiosoft.loop_batch import SIDES, solve_loop
-from cardiosoft.loop_scene import LoopScene, number_key
+from cardiosoft.network.loop_batch import SIDES, solve_loop
+from cardiosoft.network.loop_scene import LoopScene, number_key
 from cardiosoft.scene import RANGES, load_scene
 from cardiosoft.units import ml, mmHg
 
@@ -85,7 +85,7 @@ GRID_MAX = 40
 GUESS_BEATS = 30
 """Beats from the scene's initial state before Newton shooting starts (module docstring)."""
 MAX_NEWTON = 16
-"""Newton's iterations at most (:func:`~cardiosoft.loop_batch.solve_loop`). Near the box's
+"""Newton's iterations at most (:func:`~cardiosoft.network.loop_batch.solve_loop`). Near the box's
 corners it converges linearly (6-16 iterations at Omega 6, C 0.65 on the left of ``tah``); at
 8 the fallback's beats ended 0.02 mmHg from the orbit, a third of what a difference step
 changes. Newton's own tolerance is a tenth of the scene's steady tolerance (1e-3 ml or mmHg);
@@ -160,7 +160,7 @@ class LoopDesignResult:
 
     def to_json(self) -> dict:
         """design.json's record (user units)."""
-        from cardiosoft.loop_records import loop_summary_records
+        from cardiosoft.network.loop_records import loop_summary_records
 
         return {
             "scene": self.scene.name,
@@ -398,7 +398,7 @@ def optimise_loop(
       path (default the scene's).
     - ``max_evaluations``: the least-squares iterations at most (each one batched call).
     """
-    from cardiosoft.loop_results import loop_member_results
+    from cardiosoft.network.loop_results import loop_member_results
     from cardiosoft.pump import load
     from cardiosoft.results import RunResult
 
@@ -463,7 +463,7 @@ def _seen(ev: _Evaluator, name: str) -> tuple[float, float]:
 
 
 def _current(scene: LoopScene, path: str) -> float:
-    from cardiosoft.loop_scene import loop_numbers
+    from cardiosoft.network.loop_scene import loop_numbers
 
     return float(loop_numbers(scene)[path])
 

@@ -55,7 +55,7 @@ def loop_arguments(args) -> dict:
 
 def loop_report(result) -> str:
     """What the command prints: the design, a row per target, then the answer's run."""
-    from cardiosoft.loop_records import loop_summary_records, loop_table
+    from cardiosoft.network.loop_records import loop_summary_records, loop_table
 
     design = ", ".join(f"{p} {v:.4g}" for p, v in result.design.items())
     head = [
@@ -106,7 +106,7 @@ def run_loop_design(scene, args, out_dir: Path | None, console: Console) -> int:
     try:
         kwargs = loop_arguments(args)
         if args.bpm is not None:
-            from cardiosoft.loop_results import configure_loop
+            from cardiosoft.network.loop_results import configure_loop
 
             scene = configure_loop(scene, bpm=args.bpm[0])
         if args.accuracy is not None:

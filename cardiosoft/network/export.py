@@ -28,12 +28,12 @@ OUTPUT_POINTS = 401
 
 
 def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
-    """The closed-loop ``scene`` (a :class:`~cardiosoft.loop_scene.LoopScene`) as an
+    """The closed-loop ``scene`` (a :class:`~cardiosoft.network.loop_scene.LoopScene`) as an
     svZeroDSolver model in ``units`` (:data:`~cardiosoft.network.pump_in_model.UNIT_SYSTEMS`),
     run for ``beats`` beats from the scene's start. ``pump``: its pumps' surrogate (default
     the scene's). Raises ``ValueError`` for a scene this writer cannot express."""
-    from cardiosoft.heart import PumpChamber
-    from cardiosoft.loop_scene import loop_circuit
+    from cardiosoft.network.loop_components import PumpChamber
+    from cardiosoft.network.loop_scene import loop_circuit
     from cardiosoft.network.closed_loop import CHAMBERS, VALVES, VESSELS
     from cardiosoft.network.pump_in_model import UNIT_SYSTEMS
     from cardiosoft.pump import load
@@ -216,7 +216,7 @@ def main(argv=None, prog: str | None = None) -> int:
 
     from cardiosoft.console import fail
     from cardiosoft.files import atomic_path, refuse_overwrite
-    from cardiosoft.loop_scene import LoopScene
+    from cardiosoft.network.loop_scene import LoopScene
     from cardiosoft.scene import load_scene
 
     args = parser(prog).parse_args(argv)

@@ -7,7 +7,7 @@
 
 **Cases.** Each group is a list of batches; a batch is one call of the public batch solve
 (:func:`cardiosoft.batch.solve_beats`, or :func:`~cardiosoft.batch.solve_static` for the static
-scene, :func:`~cardiosoft.loop_batch.solve_loop` for a closed loop), its members the cases.
+scene, :func:`~cardiosoft.network.loop_batch.solve_loop` for a closed loop), its members the cases.
 Members of one batch share the scene's numbers and, so that the whole suite compiles a
 handful of functions, every batch of one scene structure has the same size (the 12 design
 corners, times the two column heads of a water-column scene):
@@ -36,7 +36,7 @@ corners, times the two column heads of a water-column scene):
   flags, and the exit status must say what the records say (1 when a member is not ok; flags
   alone leave it 0).
 - ``closed_loop``: the closed-loop scenes (``heart``, ``soft-lv``, ``soft-rv``, ``tah``;
-  :func:`cardiosoft.loop_batch.solve_loop`, the members the scene's numbers by path) at the
+  :func:`cardiosoft.network.loop_batch.solve_loop`, the members the scene's numbers by path) at the
   rates :data:`LOOP_BPMS`, 40-180 bpm: the native ``heart`` at every rate in one batch; a
   scene with soft pumps per rate at the design corners (every pump at the same corner: the
   scenes' own design, Omega 4, C 0.4, is one) and, for ``tah``'s two pumps, at opposite
@@ -70,7 +70,7 @@ volume, steadiness said; none of the pump scenes' energy and physical bounds) an
   beat's cycle change allows (``residual`` times :func:`left_half_capacity` over the period,
   plus :data:`BALANCE_QUADRATURE` for the trapezoid's means): mass balance of the left half.
 
-Its flags (:func:`cardiosoft.loop_results.loop_flags`: congestion, a collapsing atrium, blood
+Its flags (:func:`cardiosoft.network.loop_results.loop_flags`: congestion, a collapsing atrium, blood
 piled up on one side, a pump's pressure outside the fitted range or a cable that would push)
 are notes: the case is flagged, not failed.
 

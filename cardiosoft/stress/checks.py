@@ -9,8 +9,8 @@ import fnmatch
 import math
 from collections.abc import Iterable
 
-from cardiosoft.loop_batch import SIDES
-from cardiosoft.loop_scene import LoopScene
+from cardiosoft.network.loop_batch import SIDES
+from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.pump import Domain
 from cardiosoft.results import ENERGY_ROUNDOFF, MemberResult
 from cardiosoft.stress.cases import Case
@@ -322,12 +322,12 @@ def check_member(v: MemberView, domain: Domain | None = None) -> tuple[list, lis
 
 
 PUMP_FIELDS = ("peak_force", "min_cable_force", "cable_work")
-"""A closed-loop side's pump fields (:class:`~cardiosoft.loop_batch.SideMetrics`): NaN, by
+"""A closed-loop side's pump fields (:class:`~cardiosoft.network.loop_batch.SideMetrics`): NaN, by
 definition, for a native ventricle."""
 BALANCE_QUADRATURE = 5e-6
 """Relative error allowed for the trapezoid's means of the arterial flows
-(:attr:`~cardiosoft.loop_batch.SideMetrics.net_output`, over
-:data:`~cardiosoft.loop_batch.LOOP_SAMPLES` samples of the beat). Estimated by halving the
+(:attr:`~cardiosoft.network.loop_batch.SideMetrics.net_output`, over
+:data:`~cardiosoft.network.loop_batch.LOOP_SAMPLES` samples of the beat). Estimated by halving the
 samples, |T(h) - T(2h)| (three times Richardson's estimate of a second-order error, and a
 bound of a first-order one too, for the flows' kinks), it was at most 7.6e-7 of the output
 over 134 steady members of the ``closed_loop`` group (save="traces": heart at every rate;
@@ -344,8 +344,8 @@ class LoopView:
 
     member: MemberView
     """Its flat metrics (``raw``: ``"{side}_{field}"`` of
-    :class:`~cardiosoft.loop_batch.LoopMetrics`, SI) and its record
-    (:func:`cardiosoft.loop_results.loop_member_results`, the closed loop's flags)."""
+    :class:`~cardiosoft.network.loop_batch.LoopMetrics`, SI) and its record
+    (:func:`cardiosoft.network.loop_results.loop_member_results`, the closed loop's flags)."""
     pump_sides: tuple[str, ...]
     """The sides (``"left"``, ``"right"``) whose ventricle is a soft pump."""
     period: float

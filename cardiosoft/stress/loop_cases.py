@@ -1,7 +1,7 @@
 """The closed-loop cases of the hard-case suite (group ``closed_loop``, issue #26): the shipped
 closed-loop scenes (:data:`cardiosoft.scene.LOOP_SCENE_NAMES`) over the rates
 :data:`LOOP_BPMS` and, with a soft pump, the design corners, as :class:`LoopBatch` es of
-:class:`LoopCase` s. A batch is one call of :func:`cardiosoft.loop_batch.solve_loop`, its members
+:class:`LoopCase` s. A batch is one call of :func:`cardiosoft.network.loop_batch.solve_loop`, its members
 sets of the scene's numbers by path (``"bpm"``, ``"lv.omega"``, ...); every batch of one scene
 sets the same paths and, but for the quick subset's, has the same size, so that each scene
 structure compiles one program."""
@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from typing import ClassVar
 
-from cardiosoft.loop_scene import LoopScene
+from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.scene import load_scene
 from cardiosoft.stress.cases import GRID_OMEGAS, GRID_SHORTENINGS, fmt
 
@@ -57,14 +57,14 @@ class LoopCase:
         """Python that runs this case alone."""
         members = ", ".join(f"{k!r}: {v!r}" for k, v in self.numbers)
         return (
-            "from cardiosoft.loop_batch import solve_loop; "
+            "from cardiosoft.network.loop_batch import solve_loop; "
             f"solve_loop(cs.load_scene({self.scene!r}), members={{{members}}}, save='metrics')"
         )
 
 
 @dataclasses.dataclass(frozen=True)
 class LoopBatch:
-    """One call of :func:`~cardiosoft.loop_batch.solve_loop`: a shipped closed-loop scene and
+    """One call of :func:`~cardiosoft.network.loop_batch.solve_loop`: a shipped closed-loop scene and
     its members."""
 
     group: str

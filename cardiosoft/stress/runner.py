@@ -1,5 +1,5 @@
 """Running the hard cases: each batch through the public batch solve (a closed loop's through
-:func:`~cardiosoft.loop_batch.solve_loop`), its first design also through the command line
+:func:`~cardiosoft.network.loop_batch.solve_loop`), its first design also through the command line
 (group ``cli``), each member checked (:mod:`cardiosoft.stress.checks`)."""
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from cardiosoft.batch import solve_beats, solve_static
-from cardiosoft.loop_batch import solve_loop
-from cardiosoft.loop_results import loop_member_results, pump_sides
+from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_results import loop_member_results, pump_sides
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.results import RunResult, member_results, summary_records
 from cardiosoft.scene import Scene
@@ -173,8 +173,8 @@ class Runner:
         return out
 
     def run_loop(self, batch: LoopBatch) -> list[Outcome]:
-        """A closed loop's batch through :func:`~cardiosoft.loop_batch.solve_loop`, its
-        records (the loop's flags) through :func:`~cardiosoft.loop_results.loop_member_results`."""
+        """A closed loop's batch through :func:`~cardiosoft.network.loop_batch.solve_loop`, its
+        records (the loop's flags) through :func:`~cardiosoft.network.loop_results.loop_member_results`."""
         cases = batch.cases()
         try:
             scene = batch.build_scene()

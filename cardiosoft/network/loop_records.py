@@ -1,5 +1,5 @@
 """The records of a closed-loop run in user units: ``summary.json``, the printed table and
-the columns of ``traces.csv`` (:mod:`cardiosoft.loop_results` makes the records)."""
+the columns of ``traces.csv`` (:mod:`cardiosoft.network.loop_results` makes the records)."""
 
 from __future__ import annotations
 

@@ -5,14 +5,14 @@ metrics (issue 26).
     out = cs.solve_beats("heart", bpm=[60.0, 72.0, 90.0], save="metrics")
     out.metrics.left.cardiac_output, out.metrics.right.cardiac_output   # m^3/s per member
 
-:func:`cardiosoft.solve_beats` hands a :class:`~cardiosoft.loop_scene.LoopScene` to
+:func:`cardiosoft.solve_beats` hands a :class:`~cardiosoft.network.loop_scene.LoopScene` to
 :func:`solve_loop`, which works like it: members broadcast to one batch axis, one jitted,
 ``vmap``-ed call, beat after beat (or Newton shooting, ``steady="shooting"``) from the scene's
 initial state until the cycle-to-cycle change is below the scene's ``steady_tol``, the last
 beat sampled at :data:`LOOP_SAMPLES` equal steps, a
 :class:`~cardiosoft.batch.BeatSolution` back whose ``metrics`` are :class:`LoopMetrics`.
 
-**Members** are any numbers of the scene by path (:func:`~cardiosoft.loop_scene.loop_numbers`:
+**Members** are any numbers of the scene by path (:func:`~cardiosoft.network.loop_scene.loop_numbers`:
 ``"bpm"``, ``"lv.omega"``, ``"rv.shortening"``, ``"ar_sys.resistance"``, SI), scalars or 1-D
 arrays; ``bpm``, ``omega`` and ``shortening`` are shorthands (the last two set every pump of the
 scene). New values never recompile.
@@ -37,7 +37,7 @@ from cardiosoft.beat_solution import (
     shard,
     solution,
 )
-from cardiosoft.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
+from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
 from cardiosoft.metrics import trapezoid
 from cardiosoft.network.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.pump import PumpSurrogate, load
@@ -279,7 +279,7 @@ def solve_loop(
 
     **Arguments:**
 
-    - ``scene``: a :class:`~cardiosoft.loop_scene.LoopScene`.
+    - ``scene``: a :class:`~cardiosoft.network.loop_scene.LoopScene`.
     - ``members``: ``{path: values}`` (module docstring); ``bpm`` (beats per minute),
       ``omega`` and ``shortening`` (every pump's design) are shorthands for ``"bpm"`` and
       ``"<pump>.omega"``, ``"<pump>.shortening"``.

@@ -1,9 +1,9 @@
 """Runs of closed-loop scenes: their records and flags, :func:`run_loop` (issue 26).
 
-:func:`cardiosoft.run` hands a :class:`~cardiosoft.loop_scene.LoopScene` to :func:`run_loop`;
+:func:`cardiosoft.run` hands a :class:`~cardiosoft.network.loop_scene.LoopScene` to :func:`run_loop`;
 :func:`cardiosoft.summary_records` hands its result to
-:func:`cardiosoft.loop_records.loop_summary_records`. A member's
-``metrics`` are the :class:`~cardiosoft.loop_batch.LoopMetrics` flattened to
+:func:`cardiosoft.network.loop_records.loop_summary_records`. A member's
+``metrics`` are the :class:`~cardiosoft.network.loop_batch.LoopMetrics` flattened to
 ``"{side}_{field}"`` (``"left_stroke_volume"``) and ``pulmonary_volume``,
 ``systemic_volume``, ``total_volume`` (SI).
 
@@ -34,8 +34,8 @@ import dataclasses
 import numpy as np
 
 from cardiosoft.beat_solution import BeatSolution
-from cardiosoft.loop_batch import SIDES, loop_members, solve_loop
-from cardiosoft.loop_scene import LoopScene
+from cardiosoft.network.loop_batch import SIDES, loop_members, solve_loop
+from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.pump import Domain, PumpSurrogate, load
 from cardiosoft.results import MemberResult, RunResult, flags
 from cardiosoft.solve import SolverConfig
@@ -125,7 +125,7 @@ def pump_sides(scene: LoopScene) -> tuple[str, ...]:
 def loop_member_results(
     scene: LoopScene, labels, solution: BeatSolution, domain: Domain | None = None
 ) -> tuple[MemberResult, ...]:
-    """Records of a :func:`~cardiosoft.loop_batch.solve_loop` solution, one per member."""
+    """Records of a :func:`~cardiosoft.network.loop_batch.solve_loop` solution, one per member."""
     domain = Domain() if domain is None else domain
     out = []
     for i, label in enumerate(labels):

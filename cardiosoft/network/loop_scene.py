@@ -27,7 +27,7 @@ from typing import ClassVar
 
 from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES, CablePull
-from cardiosoft.heart import Activation, ElastanceChamber, PumpChamber, Vessel
+from cardiosoft.network.loop_components import Activation, ElastanceChamber, PumpChamber, Vessel
 from cardiosoft.network.closed_loop import CHAMBERS, VALVES, VESSELS, ClosedLoop
 from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, PumpSurrogate
 from cardiosoft.solve import ACCURACY_PRESETS as ACCURACY
@@ -60,7 +60,7 @@ _DOMAIN = Domain()
 
 @dataclasses.dataclass(frozen=True)
 class ElastanceSpec:
-    """A time-varying-elastance chamber (:class:`~cardiosoft.heart.ElastanceChamber`), SI."""
+    """A time-varying-elastance chamber (:class:`~cardiosoft.network.loop_components.ElastanceChamber`), SI."""
 
     kind: ClassVar[str] = "elastance"
     active_elastance: float
@@ -74,7 +74,7 @@ class ElastanceSpec:
 
 @dataclasses.dataclass(frozen=True)
 class PumpSpec:
-    """The soft pump as a chamber (:class:`~cardiosoft.heart.PumpChamber`): its design (Omega,
+    """The soft pump as a chamber (:class:`~cardiosoft.network.loop_components.PumpChamber`): its design (Omega,
     C), the pull's shape and fractions of the period, and its onset in the period."""
 
     kind: ClassVar[str] = "pump"
@@ -89,7 +89,7 @@ class PumpSpec:
 
 @dataclasses.dataclass(frozen=True)
 class VesselSpec:
-    """An RLC vessel compartment (:class:`~cardiosoft.heart.Vessel`), SI."""
+    """An RLC vessel compartment (:class:`~cardiosoft.network.loop_components.Vessel`), SI."""
 
     resistance: float
     compliance: float
