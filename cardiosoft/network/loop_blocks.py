@@ -7,16 +7,16 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from cardiosoft.network.loop_components import AbstractChamber
 from cardiosoft.network.blocks import Block
+from cardiosoft.network.loop_components import AbstractChamber
 from cardiosoft.valves import ArctanValve, Valve
 
 
 class LawChamber(Block):
-    """A chamber with the pressure law ``law.pressure(t, V)`` (:class:`~cardiosoft.network.loop_components.
-    AbstractChamber`: the soft pump at its pull, or a time-varying elastance). Ports: inlet,
-    outlet, both at the chamber's pressure. State: the volume V (m^3),
-    ``dV/dt = Q_in - Q_out``."""
+    """A chamber with the pressure law ``law.pressure(t, V)``
+    (:class:`~cardiosoft.network.loop_components.AbstractChamber`: the soft pump at its pull,
+    or a time-varying elastance). Ports: inlet, outlet, both at the chamber's pressure. State:
+    the volume V (m^3), ``dV/dt = Q_in - Q_out``."""
 
     law: AbstractChamber
     kind = "Chamber"
