@@ -94,9 +94,9 @@ from cardiosoft.circuit import (
     WallContact,
 )
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
+from cardiosoft.metrics import beat_metrics, trapezoid
 from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.network.loop_scene import LoopScene
-from cardiosoft.metrics import beat_metrics, trapezoid
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
 from cardiosoft.shooting import orbit_beat, shoot_periodic
@@ -417,7 +417,8 @@ def solve_beats(
 def _solve_loop_scene(
     scene, omega, shortening, bpm, afterload, beats, save, steady, energy, pump, config
 ) -> BeatSolution:
-    """:func:`solve_beats` of a closed-loop scene (:func:`cardiosoft.network.loop_batch.solve_loop`)."""
+    """:func:`solve_beats` of a closed-loop scene
+    (:func:`cardiosoft.network.loop_batch.solve_loop`)."""
     if afterload is not None:
         raise ValueError(f"afterload: scene {scene.name} is a closed loop, with no column head")
     if energy:

@@ -115,7 +115,8 @@ def run(
 
     - ``scene``: a shipped scene name, a path to a scene file, or a :class:`Scene`; a
       closed-loop scene (``heart``, ``soft-lv``, ``soft-rv``, ``tah``) is run by
-      :func:`cardiosoft.network.loop_results.run_loop` (``omega`` and ``shortening`` set every pump).
+      :func:`cardiosoft.network.loop_results.run_loop` (``omega`` and ``shortening`` set every
+      pump).
     - ``omega``: helix parameter, [0, 6]; ``shortening``: C, [0, 0.65].
     - ``bpm``: beats per minute, (0, 300].
     - ``afterload``: column head(s) in mmHg, [0, 150] (water-column scenes).
@@ -186,7 +187,8 @@ def run_designs(
     if isinstance(scene, LoopScene):
         raise ValueError(
             f"scene {scene.name} is a closed loop: give its pumps' designs as members of "
-            "cardiosoft.network.loop_batch.solve_loop(members={'lv.omega': ...}) or run() one design"
+            "cardiosoft.network.loop_batch.solve_loop(members={'lv.omega': ...}) or run() one "
+            "design"
         )
     designs = [tuple(d) for d in designs]
     if not designs or any(len(d) != 2 for d in designs):

@@ -12,9 +12,9 @@ import math
 import numpy as np
 
 from cardiosoft.batch import BeatSolution, StaticSolution
+from cardiosoft.metrics import BeatMetrics
 from cardiosoft.network.loop_records import loop_summary_records
 from cardiosoft.network.loop_scene import LoopScene
-from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import Domain
 from cardiosoft.scene import Scene
 from cardiosoft.units import ml, mmHg

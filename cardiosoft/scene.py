@@ -139,7 +139,8 @@ ADDABLE_EFFECTS = ("cable_slack", "wall_contact")
 (``--add-effect``)."""
 SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")
 LOOP_SCENE_NAMES = ("heart", "soft-lv", "soft-rv", "tah")
-"""The shipped closed-loop scenes (``kind = "closed_loop"``, :mod:`cardiosoft.network.loop_scene`)."""
+"""The shipped closed-loop scenes (``kind = "closed_loop"``,
+:mod:`cardiosoft.network.loop_scene`)."""
 ACCURACY = ACCURACY_PRESETS
 
 
@@ -497,8 +498,8 @@ def _validated(scene: Scene) -> Scene:
 def load_scene(name_or_path, pump=None) -> Scene | LoopScene:
     """A shipped scene by name (:data:`SCENE_NAMES`, :data:`LOOP_SCENE_NAMES`) or a scene file
     by path; a closed-loop file (``kind = "closed_loop"``) gives a
-    :class:`~cardiosoft.network.loop_scene.LoopScene`. ``pump`` runs another surrogate than the file's
-    own (module docstring: a scene calibrated per pump needs its numbers for it)."""
+    :class:`~cardiosoft.network.loop_scene.LoopScene`. ``pump`` runs another surrogate than the
+    file's own (module docstring: a scene calibrated per pump needs its numbers for it)."""
     text_name = str(name_or_path)
     if text_name in SCENE_NAMES + LOOP_SCENE_NAMES:
         path = resources.files("cardiosoft") / "scenes" / f"{text_name}.toml"

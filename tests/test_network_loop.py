@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 
 import cardiosoft as cs
-from cardiosoft.network.loop_batch import solve_loop
-from cardiosoft.network.loop_scene import loop_circuit
 from cardiosoft.network import read
 from cardiosoft.network.closed_loop import flat_state, loop_order
+from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_scene import loop_circuit
 from cardiosoft.network.ordering import order_nodes
 from cardiosoft.pump import load
 from cardiosoft.solve import preset

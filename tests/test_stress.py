@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 
 from cardiosoft import stress
+from cardiosoft.metrics import BeatMetrics
 from cardiosoft.network.loop_batch import SideMetrics
 from cardiosoft.network.loop_results import loop_flags
-from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import Domain
 from cardiosoft.results import MemberResult, flags
 from cardiosoft.scene import LOOP_SCENE_NAMES, RANGES, SCENE_NAMES, load_scene

@@ -20,9 +20,10 @@ pressure, and a target is reached within one unit (the issue's "within 1 mmHg").
 periodic steady state a closed loop's outputs are equal on both sides, so one output target
 serves both pumps; the two atrial pressures say where the loop's blood sits.
 
-**The method.** Every evaluation is one call of :func:`cardiosoft.network.loop_batch.solve_loop` on a
-batch of ``d + 1`` members (``d`` free variables), the periodic steady state by Newton
-shooting. Beat after beat from rest takes 50-150 beats on ``tah`` (the systemic veins'
+**The method.** Every evaluation is one call of
+:func:`cardiosoft.network.loop_batch.solve_loop` on a batch of ``d + 1`` members (``d`` free
+variables), the periodic steady state by Newton shooting. Beat after beat from rest takes
+50-150 beats on ``tah`` (the systemic veins'
 compliance of 60 ml/mmHg leaves a slow mode) and stops 0.01-0.03 mmHg from the orbit in the
 left-atrial pressure, a third of what a difference step changes; shooting's batches ran in
 0.7-1 s against 1.9-2.5 s (measured on ``tah``'s grid). One program, compiled once:

@@ -13,7 +13,8 @@ notes' equations in ``notes/closed-loop-regazzoni.md``), in SI::
 with the valve flows ``Q = valve(p_up - p_down)``: mitral LA -> LV, aortic LV -> AR_SYS,
 tricuspid RA -> RV, pulmonary RV -> AR_PUL. Each chamber is an
 :class:`~cardiosoft.network.loop_components.ElastanceChamber` or the soft pump, a
-:class:`~cardiosoft.network.loop_components.PumpChamber`: a pump in place of a ventricle keeps the rest of the
+:class:`~cardiosoft.network.loop_components.PumpChamber`: a pump in place of a ventricle keeps the
+rest of the
 loop (filled from its atrium through the inlet valve, ejecting through the outlet valve into
 the same arterial compartment).
 
@@ -44,9 +45,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cardiosoft.network.loop_components import AbstractChamber, Activation, ElastanceChamber, PumpChamber, Vessel
 from cardiosoft.network.blocks import BloodVessel
 from cardiosoft.network.loop_blocks import LawChamber, LawValve
+from cardiosoft.network.loop_components import (
+    AbstractChamber,
+    Activation,
+    ElastanceChamber,
+    PumpChamber,
+    Vessel,
+)
 from cardiosoft.network.network import Network
 from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s2_per_ml, mmHg_s_per_ml
 from cardiosoft.valves import ArctanValve, Valve
@@ -96,9 +103,10 @@ class ClosedLoop(eqx.Module):
     """The closed circulation's vector field (module docstring).
 
     **Arguments:** the chambers ``la``, ``lv``, ``ra``, ``rv``
-    (:class:`~cardiosoft.network.loop_components.AbstractChamber`: elastance chambers or pumps, one period for
-    all); the vessels ``ar_sys``, ``ven_sys``, ``ar_pul``, ``ven_pul``
-    (:class:`~cardiosoft.network.loop_components.Vessel`); the valves ``mitral``, ``aortic``, ``tricuspid``,
+    (:class:`~cardiosoft.network.loop_components.AbstractChamber`: elastance chambers or pumps,
+    one period for all); the vessels ``ar_sys``, ``ven_sys``, ``ar_pul``, ``ven_pul``
+    (:class:`~cardiosoft.network.loop_components.Vessel`); the valves ``mitral``, ``aortic``,
+    ``tricuspid``,
     ``pulmonary`` (:class:`~cardiosoft.valves.ArctanValve` or
     :class:`~cardiosoft.valves.Valve`).
     """

@@ -32,9 +32,9 @@ def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
     svZeroDSolver model in ``units`` (:data:`~cardiosoft.network.pump_in_model.UNIT_SYSTEMS`),
     run for ``beats`` beats from the scene's start. ``pump``: its pumps' surrogate (default
     the scene's). Raises ``ValueError`` for a scene this writer cannot express."""
+    from cardiosoft.network.closed_loop import CHAMBERS, VALVES, VESSELS
     from cardiosoft.network.loop_components import PumpChamber
     from cardiosoft.network.loop_scene import loop_circuit
-    from cardiosoft.network.closed_loop import CHAMBERS, VALVES, VESSELS
     from cardiosoft.network.pump_in_model import UNIT_SYSTEMS
     from cardiosoft.pump import load
     from cardiosoft.valves import ArctanValve

@@ -12,7 +12,8 @@ initial state until the cycle-to-cycle change is below the scene's ``steady_tol`
 beat sampled at :data:`LOOP_SAMPLES` equal steps, a
 :class:`~cardiosoft.batch.BeatSolution` back whose ``metrics`` are :class:`LoopMetrics`.
 
-**Members** are any numbers of the scene by path (:func:`~cardiosoft.network.loop_scene.loop_numbers`:
+**Members** are any numbers of the scene by path
+(:func:`~cardiosoft.network.loop_scene.loop_numbers`:
 ``"bpm"``, ``"lv.omega"``, ``"rv.shortening"``, ``"ar_sys.resistance"``, SI), scalars or 1-D
 arrays; ``bpm``, ``omega`` and ``shortening`` are shorthands (the last two set every pump of the
 scene). New values never recompile.
@@ -37,9 +38,9 @@ from cardiosoft.beat_solution import (
     shard,
     solution,
 )
-from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
 from cardiosoft.metrics import trapezoid
 from cardiosoft.network.closed_loop import CHAMBERS, VESSELS, ClosedLoop
+from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.shooting import shoot_periodic
 from cardiosoft.solve import SolverConfig, periodic_beats, preset

@@ -1,6 +1,7 @@
 """Runs of closed-loop scenes: their records and flags, :func:`run_loop` (issue 26).
 
-:func:`cardiosoft.run` hands a :class:`~cardiosoft.network.loop_scene.LoopScene` to :func:`run_loop`;
+:func:`cardiosoft.run` hands a :class:`~cardiosoft.network.loop_scene.LoopScene` to
+:func:`run_loop`;
 :func:`cardiosoft.summary_records` hands its result to
 :func:`cardiosoft.network.loop_records.loop_summary_records`. A member's
 ``metrics`` are the :class:`~cardiosoft.network.loop_batch.LoopMetrics` flattened to

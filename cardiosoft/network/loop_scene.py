@@ -27,8 +27,8 @@ from typing import ClassVar
 
 from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES, CablePull
-from cardiosoft.network.loop_components import Activation, ElastanceChamber, PumpChamber, Vessel
 from cardiosoft.network.closed_loop import CHAMBERS, VALVES, VESSELS, ClosedLoop
+from cardiosoft.network.loop_components import Activation, ElastanceChamber, PumpChamber, Vessel
 from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, PumpSurrogate
 from cardiosoft.solve import ACCURACY_PRESETS as ACCURACY
 from cardiosoft.units import ml, ml_per_mmHg, mmHg, mmHg_s2_per_ml, mmHg_s_per_ml
@@ -60,7 +60,8 @@ _DOMAIN = Domain()
 
 @dataclasses.dataclass(frozen=True)
 class ElastanceSpec:
-    """A time-varying-elastance chamber (:class:`~cardiosoft.network.loop_components.ElastanceChamber`), SI."""
+    """A time-varying-elastance chamber
+    (:class:`~cardiosoft.network.loop_components.ElastanceChamber`), SI."""
 
     kind: ClassVar[str] = "elastance"
     active_elastance: float
@@ -74,8 +75,8 @@ class ElastanceSpec:
 
 @dataclasses.dataclass(frozen=True)
 class PumpSpec:
-    """The soft pump as a chamber (:class:`~cardiosoft.network.loop_components.PumpChamber`): its design (Omega,
-    C), the pull's shape and fractions of the period, and its onset in the period."""
+    """The soft pump as a chamber (:class:`~cardiosoft.network.loop_components.PumpChamber`): its
+    design (Omega, C), the pull's shape and fractions of the period, and its onset in the period."""
 
     kind: ClassVar[str] = "pump"
     omega: float

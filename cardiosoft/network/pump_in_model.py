@@ -2,7 +2,8 @@
 
 ``cardiosoft simulate --scene model.json --pump-chamber LV --units mmHg`` reads the model and
 puts the pump (the surrogate's chamber law at a prescribed cable pull,
-:class:`~cardiosoft.network.loop_components.PumpChamber`) where its chamber ``LV`` was, between the same nodes:
+:class:`~cardiosoft.network.loop_components.PumpChamber`) where its chamber ``LV`` was, between
+the same nodes:
 filled through the same inlet, ejecting through the same outlet. The pump is SI inside; the
 model is in its own units, which svZeroDSolver files do not state, so ``--units`` says which
 (:data:`UNIT_SYSTEMS`, default ``cgs``, SimVascular's). The replaced chamber's outlet inductor,
@@ -24,8 +25,8 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
-from cardiosoft.network.loop_components import PumpChamber
 from cardiosoft.network.blocks import Block
+from cardiosoft.network.loop_components import PumpChamber
 from cardiosoft.pump import Domain, load
 from cardiosoft.units import ml, mmHg
 

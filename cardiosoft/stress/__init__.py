@@ -70,7 +70,8 @@ volume, steadiness said; none of the pump scenes' energy and physical bounds) an
   beat's cycle change allows (``residual`` times :func:`left_half_capacity` over the period,
   plus :data:`BALANCE_QUADRATURE` for the trapezoid's means): mass balance of the left half.
 
-Its flags (:func:`cardiosoft.network.loop_results.loop_flags`: congestion, a collapsing atrium, blood
+Its flags (:func:`cardiosoft.network.loop_results.loop_flags`: congestion, a collapsing atrium,
+blood
 piled up on one side, a pump's pressure outside the fitted range or a cable that would push)
 are notes: the case is flagged, not failed.
 

@@ -1,7 +1,8 @@
 """The closed-loop cases of the hard-case suite (group ``closed_loop``, issue #26): the shipped
 closed-loop scenes (:data:`cardiosoft.scene.LOOP_SCENE_NAMES`) over the rates
 :data:`LOOP_BPMS` and, with a soft pump, the design corners, as :class:`LoopBatch` es of
-:class:`LoopCase` s. A batch is one call of :func:`cardiosoft.network.loop_batch.solve_loop`, its members
+:class:`LoopCase` s. A batch is one call of :func:`cardiosoft.network.loop_batch.solve_loop`, its
+members
 sets of the scene's numbers by path (``"bpm"``, ``"lv.omega"``, ...); every batch of one scene
 sets the same paths and, but for the quick subset's, has the same size, so that each scene
 structure compiles one program."""
@@ -64,8 +65,8 @@ class LoopCase:
 
 @dataclasses.dataclass(frozen=True)
 class LoopBatch:
-    """One call of :func:`~cardiosoft.network.loop_batch.solve_loop`: a shipped closed-loop scene and
-    its members."""
+    """One call of :func:`~cardiosoft.network.loop_batch.solve_loop`: a shipped closed-loop scene
+    and its members."""
 
     group: str
     title: str

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from cardiosoft.batch import solve_beats, solve_static
+from cardiosoft.metrics import BeatMetrics
 from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.network.loop_results import loop_member_results, pump_sides
-from cardiosoft.metrics import BeatMetrics
 from cardiosoft.results import RunResult, member_results, summary_records
 from cardiosoft.scene import Scene
 from cardiosoft.static import column_stiffness
@@ -174,7 +174,8 @@ class Runner:
 
     def run_loop(self, batch: LoopBatch) -> list[Outcome]:
         """A closed loop's batch through :func:`~cardiosoft.network.loop_batch.solve_loop`, its
-        records (the loop's flags) through :func:`~cardiosoft.network.loop_results.loop_member_results`."""
+        records (the loop's flags) through
+        :func:`~cardiosoft.network.loop_results.loop_member_results`."""
         cases = batch.cases()
         try:
             scene = batch.build_scene()
