@@ -73,9 +73,11 @@ def parser(prog: str | None = None):
     p.add_argument(
         "--steady",
         choices=("beats", "shooting"),
-        default="beats",
-        help="reach the periodic steady state beat after beat (default) or by Newton shooting "
-        "on the one-beat map (robust at high rates; compiles longer)",
+        nargs="?",
+        const="beats",
+        help="reach the periodic steady state beat after beat (beats, the default) or by "
+        "Newton shooting on the one-beat map (robust at high rates; compiles longer); an "
+        "svZeroDSolver model runs its own number_of_cardiac_cycles unless --steady is given",
     )
     p.add_argument(
         "--max-steps",
@@ -438,6 +440,7 @@ def main(argv=None, prog: str | None = None) -> int:
         if getattr(args, option) is not None:
             flag = "--" + option.replace("_", "-")
             return fail(ValueError(f"{flag}: only with an svZeroDSolver model (--scene *.json)"))
+    args.steady = args.steady or "beats"  # a scene always runs to its periodic steady state
     out_dir = Path(args.out) if args.out else None
     posterior = every_draw = None
     try:

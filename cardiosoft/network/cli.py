@@ -7,8 +7,13 @@ variable, under svZeroDSolver's names) and ``summary.json``.
 (:mod:`cardiosoft.network.pump_in_model`; ``--units`` the model's units, ``--omega``,
 ``--shortening`` and ``--pump`` its design and surrogate) and prints its beat.
 
-Exit status: 0; 1 when the solve failed or its Newton did not converge; 2 on bad input (a
-model or an option this reader does not take, refused in one line).
+``--steady`` runs beat after beat to the periodic steady state instead of the model's
+``number_of_cardiac_cycles`` and reports the steady beat
+(:func:`cardiosoft.network.run.simulate`'s ``steady``).
+
+Exit status: 0; 1 when the solve failed, its Newton did not converge or, with ``--steady``, the
+steady state was not reached; 2 on bad input (a model or an option this reader does not take,
+refused in one line).
 """
 
 from __future__ import annotations
@@ -57,8 +62,11 @@ def _check_options(args) -> None:
                 f"--{name.replace('_', '-')} does not apply to an svZeroDSolver model; "
                 "its file sets the run"
             )
-    if getattr(args, "steady", "beats") != "beats":
-        raise ValueError("--steady: an svZeroDSolver model runs its own number_of_cardiac_cycles")
+    if getattr(args, "steady", None) == "shooting":
+        raise ValueError(
+            "--steady shooting: an svZeroDSolver model reaches its periodic steady state beat "
+            "after beat (--steady)"
+        )
 
 
 def simulate_model(args, console) -> int:
@@ -82,13 +90,14 @@ def simulate_model(args, console) -> int:
     except ValueError as err:  # an unsupported model or option, a broken JSON file
         return fail(ValueError(f"--scene {args.scene}: {err}"))
     sim, net = model.simulation, model.network
+    steady = getattr(args, "steady", None) is not None
+    beats = "beats to the periodic steady state" if steady else f"{sim.cycles} beats"
     console.say(
         f"{model.name} (svZeroDSolver model): {len(net.blocks)} blocks, {net.n_nodes} nodes, "
-        f"{net.n_states} states; {sim.cycles} beats of {net.period:g} s; "
-        "compiling, then solving ..."
+        f"{net.n_states} states; {beats} of {net.period:g} s; compiling, then solving ..."
     )
     start = time.perf_counter()
-    traces = simulate(model, args.accuracy or "default")
+    traces = simulate(model, args.accuracy or "default", steady=steady)
     seconds = time.perf_counter() - start
     console.say(
         f"done in {seconds:.1f} s ({traces.steps} steps"
@@ -98,6 +107,12 @@ def simulate_model(args, console) -> int:
         console.fail(model.name, "the steady start-up's Newton did not converge")
     if not traces.solved:
         console.fail(model.name, "the solve failed, or the nodes' Newton did not converge")
+    if traces.steady is False:
+        console.fail(
+            model.name,
+            f"not at the periodic steady state after {traces.beats} beats (the last beat's "
+            f"change {traces.residual:.3g} times the steady tolerance)",
+        )
     pump = None if placement is None else pump_metrics(traces, placement, net.nodes)
     for flag in [] if pump is None else pump_flags(pump):
         console.flag(model.name, flag)
@@ -127,7 +142,9 @@ def simulate_model(args, console) -> int:
                 **pump,
             },
             "period": net.period,
-            "beats": sim.cycles,
+            "beats": sim.cycles if traces.beats is None else traces.beats,
+            "steady": traces.steady,
+            "steady_residual": traces.residual,
             "accuracy": args.accuracy or "default",
             "solved": traces.solved,
             "steady_start": traces.steady_start,

@@ -32,7 +32,11 @@ class Traces:
       every output time; ``steady_start``: the steady start-up's
       Newton converged (None when the model starts from its initial condition);
     - ``steps``: the integrator's accepted steps, ``stiff``: whether the implicit solver was
-      needed (the explicit one ran out of steps).
+      needed (the explicit one ran out of steps);
+    - ``steady``: with :func:`simulate`'s ``steady``, whether the periodic steady state was
+      reached (None when the model's own beats were run), after ``beats`` beats (the reported
+      one included), the last one's cycle-to-cycle change ``residual`` (the largest state's
+      change over its tolerance; at most 1 when steady).
 
     A batch of variants (:func:`simulate`'s ``variants``) puts the variants' axis first in every
     ``values`` array; the flags hold for all of them and ``steps`` is the most any took.
@@ -44,6 +48,9 @@ class Traces:
     steady_start: bool | None
     steps: int
     stiff: bool
+    steady: bool | None = None
+    beats: int | None = None
+    residual: float | None = None
 
     def write_csv(self, path) -> None:
         """``time`` and one column per variable, as ``path`` (written whole or not at all)."""
@@ -89,15 +96,36 @@ def _jump_times(net, t_end):
     if not knots:
         return None
     knots = np.unique(np.concatenate(knots))
-    return jnp.asarray(knots[(knots > 0) & (knots < t_end)])
+    knots = knots[(knots > 0) & (knots < t_end)]
+    return jnp.asarray(knots) if knots.size else None  # diffrax takes no empty jump_ts
 
 
-def simulate(model: Model, accuracy: str = "default", *, rtol=None, variants=None) -> Traces:
+STEADY_TOLERANCE = 100.0
+"""With ``steady``, a beat is steady when no state changes over it by more than this many times
+its integration tolerance (``rtol`` times the largest magnitude of its kind; preset "default":
+1e-4 of it), well above what the integration's own error moves it."""
+STEADY_MAX_BEATS = 1000
+"""With ``steady``, the most beats run before the run is reported as not steady."""
+
+
+def simulate(
+    model: Model,
+    accuracy: str = "default",
+    *,
+    rtol=None,
+    variants=None,
+    steady: bool = False,
+    max_beats: int | None = None,
+) -> Traces:
     """Run ``model`` for its number of beats and return its variables at svZeroDSolver's output
     times.
 
     - ``accuracy``: a solver preset (``cardiosoft.solve.PRESETS``); ``rtol`` overrides its
       relative tolerance (the absolute ones follow it, see ``_tolerances``).
+    - ``steady``: run beat after beat to the periodic steady state instead of the model's
+      ``number_of_cardiac_cycles`` (:data:`STEADY_TOLERANCE`, at most ``max_beats`` beats,
+      default :data:`STEADY_MAX_BEATS`) and report the steady beat (time from 0,
+      ``output_all_cycles`` notwithstanding).
     - ``variants``: ``model.network`` with a leading batch axis on its parameters (built, say,
       by ``jax.vmap`` over ``eqx.tree_at``): all of them are solved in one compiled, vectorised
       call. Every array of the result then has that axis first; ``solved`` and
@@ -117,13 +145,17 @@ def simulate(model: Model, accuracy: str = "default", *, rtol=None, variants=Non
         x0, ok = each(_steady_state, 0, None)(net, x0)
         steady_start = bool(jnp.all(ok))
     x0 = each(_consistent, 0, 0 if sim.steady_initial else None)(net, x0)
+    cycles, output_all = (1, False) if steady else (sim.cycles, sim.output_all_cycles)
     dt = model.network.period / sim.steps_per_cycle
-    t_all = dt * np.arange(sim.steps_per_cycle * sim.cycles + 1)
-    ts = t_all if sim.output_all_cycles else t_all[-sim.points_per_cycle :]
+    t_all = dt * np.arange(sim.steps_per_cycle * cycles + 1)
+    ts = t_all if output_all else t_all[-sim.points_per_cycle :]
     ts = jnp.asarray(ts)
+    periodic = dict(steady=None, beats=None, residual=None)
     if model.network.n_states == 0:
         zs, internal, converged = each(_read_out, 0, None, 0)(net, ts, jnp.zeros((ts.shape[0], 0)))
         steps, stiff, solved = 0, False, True
+        if steady:  # nothing to settle: every beat is the same
+            periodic = dict(steady=True, beats=1, residual=0.0)
     else:
         rtol = PRESETS[accuracy]["rtol"] if rtol is None else rtol
         first, x_start = model.network, model.initial_states()
@@ -132,12 +164,17 @@ def simulate(model: Model, accuracy: str = "default", *, rtol=None, variants=Non
         for stiff in (False, True):
             base = preset(accuracy, stiff=stiff)
             # the preset's step budget is a beat's: a run of many beats gets it for each
-            budget = base.max_steps * sim.cycles
+            budget = base.max_steps * cycles
             config = SolverConfig(base.solver, rtol, atol, base.pcoeff, base.icoeff, budget)
+            x_first, started = x0, True
+            if steady:
+                x_first, started, periodic = _periodic_start(
+                    each, net, x0, float(t_all[-1]), jumps, config, max_beats or STEADY_MAX_BEATS
+                )
             zs, internal, converged, result, steps = each(_run, 0, 0, None, None, None, None)(
-                net, x0, float(t_all[-1]), ts, jumps, config
+                net, x_first, float(t_all[-1]), ts, jumps, config
             )
-            solved = bool(jnp.all(result == diffrax.RESULTS.successful))
+            solved = started and bool(jnp.all(result == diffrax.RESULTS.successful))
             if solved:
                 break
         steps = int(jnp.max(steps))
@@ -149,7 +186,26 @@ def simulate(model: Model, accuracy: str = "default", *, rtol=None, variants=Non
         values[f"flow:{up}:{down}"] = np.asarray(zs[..., n + i])
     values.update({k: np.asarray(v) for k, v in internal.items()})
     time = ts if sim.output_all_cycles else ts - ts[0]
-    return Traces(np.asarray(time), values, solved, steady_start, steps, stiff)
+    return Traces(np.asarray(time), values, solved, steady_start, steps, stiff, **periodic)
+
+
+def _periodic_start(each, net, x0, period, jumps, config, max_beats):
+    """Beat after beat from ``x0`` until a beat changes no state by more than
+    :data:`STEADY_TOLERANCE` times its tolerance (``config.atol``). Returns the state at the
+    start of the steady beat, whether every beat was solved, and ``Traces``' ``steady``,
+    ``beats`` (counting the steady beat, which the caller runs and reports) and ``residual``."""
+    tolerance = STEADY_TOLERANCE * np.asarray(config.atol)
+    one_beat = each(_one_beat, 0, 0, None, None, None)
+    x, residual = x0, np.inf
+    for beat in range(1, max_beats):
+        x_next, result = one_beat(net, x, period, jumps, config)
+        if not bool(jnp.all(result == diffrax.RESULTS.successful)):
+            return x, False, dict(steady=False, beats=beat, residual=residual)
+        residual = float(np.max(np.abs(np.asarray(x_next) - np.asarray(x)) / tolerance))
+        x = x_next
+        if residual <= 1.0:
+            return x, True, dict(steady=True, beats=beat + 1, residual=residual)
+    return x, True, dict(steady=False, beats=max_beats, residual=residual)
 
 
 @eqx.filter_jit
@@ -173,6 +229,21 @@ def _read_out(net, ts, xs):
     scale = jnp.stack([jnp.max(jnp.abs(zs[:, :n])), jnp.max(jnp.abs(zs[:, n:]))])
     converged = jax.vmap(net.newton_converged, in_axes=(0, 0, None))(ts, xs, scale)
     return zs, jax.vmap(net.outputs)(ts, xs, zs), jnp.all(converged)
+
+
+@eqx.filter_jit
+def _one_beat(net, x0, period, jumps, config):
+    """The state after one beat from ``x0`` at t = 0 (the forcing repeats every beat)."""
+    sol = integrate(
+        lambda t, x, net: net.vector_field(t, x),
+        x0,
+        0.0,
+        period,
+        args=net,
+        jump_ts=jumps,
+        config=config,
+    )
+    return sol.ys[-1], sol.result
 
 
 @eqx.filter_jit
