@@ -41,6 +41,7 @@ from cardiosoft.network.blocks import (
     ValveTanh,
     VesselJunction,
 )
+from cardiosoft.network.coronary_blocks import CORONARIES, coronary, join_coronaries
 from cardiosoft.network.heart_blocks import (
     ACTIVATIONS,
     CHAMBER_PARAMETERS,
@@ -64,6 +65,10 @@ SUPPORTED_BLOCKS = (
     "RESISTANCE",
     "RCR",
     "ClosedLoopRCR",
+    "CORONARY",
+    "CORONARY_VAR_RES",
+    "ClosedLoopCoronaryLeft",
+    "ClosedLoopCoronaryRight",
     "NORMAL_JUNCTION",
     "BloodVesselJunction",
     "ValveTanh",
@@ -227,8 +232,17 @@ def _arrays(p: dict, keys) -> dict:
     return {k: jnp.asarray(p[k], dtype=float) for k in keys}
 
 
-def _boundary_condition(bc: dict):
-    """(name, factory of the block from its ports, its time tables, whether it feeds the heart)."""
+def _checked(make, *args):
+    """``make(*args)``, its ValueError (a wiring or a value it cannot take) refused."""
+    try:
+        return make(*args)
+    except ValueError as error:
+        raise UnsupportedModel(str(error)) from None
+
+
+def _boundary_condition(bc: dict, clock: dict):
+    """(name, factory of the block from its ports, its time tables, whether it feeds the heart).
+    ``clock["period"]``: the model's period, set before the factories run."""
     name, kind, params = bc["bc_name"], bc["bc_type"], bc.get("bc_values", {})
     where = f"{kind} {name}"
     if kind == "FLOW":
@@ -249,6 +263,12 @@ def _boundary_condition(bc: dict):
             [],
             bool(p["closed_loop_outlet"]),
         )
+    elif kind in CORONARIES:  # open loop (Pim a table), or closed loop (into the heart)
+        is_open = "Pim" in CORONARIES[kind]
+        optional, tables = ("closed_loop_outlet",) * is_open, ("Pim",) * is_open
+        p = _values(params, where, CORONARIES[kind], optional, tables)
+        make = lambda ports: _checked(coronary, kind, name, p, ports, clock)  # noqa: E731
+        return name, make, [p["Pim"]] if is_open else [], not is_open
     else:
         raise UnsupportedModel(f"block type {kind!r} (boundary condition {name}) is not supported")
     tables = [v for v in kwargs.values() if isinstance(v, TimeTable)]
@@ -299,9 +319,9 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
             connections.append((ends["inlet"], vname))
         if "outlet" in ends:
             connections.append((vname, ends["outlet"]))
-    tables, heart_inlets = [], []
+    tables, heart_inlets, clock = [], [], {}
     for bc in config["boundary_conditions"]:
-        bname, factory, bc_tables, feeds_heart = _boundary_condition(bc)
+        bname, factory, bc_tables, feeds_heart = _boundary_condition(bc, clock)
         factories[bname] = factory
         tables += bc_tables
         if feeds_heart:
@@ -363,7 +383,7 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
             f"inconsistent cardiac cycle period: {given_period:g} in simulation_parameters, "
             f"{period:g} in the model's blocks"
         )
-    period = period or given_period or 1.0
+    period = clock["period"] = float(period or given_period or 1.0)
     simulation = _simulation(sim)
     if pump is not None:
         factories[pump.chamber] = _pump_factory(pump, chambers, config, float(period), simulation)
@@ -387,6 +407,8 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
         return inlets, outlets
 
     blocks = [make(ports(block_name)) for block_name, make in factories.items()]
+    rates = [k for k in config.get("initial_condition_d") or {} if not k.startswith("_")]
+    blocks = _checked(join_coronaries, blocks, bool(rates) and not simulation.steady_initial)
     network = Network(tuple(blocks), tuple(connections), float(period))
     initial = _initial(config.get("initial_condition", {}), variable_names(network))
     model = Model(network, simulation, initial, name or "model")
