@@ -18,7 +18,6 @@ from cardiosoft import units as units
 from cardiosoft.batch import BeatSolution as BeatSolution
 from cardiosoft.batch import StaticSolution as StaticSolution
 from cardiosoft.batch import scene_circuit as scene_circuit
-from cardiosoft.batch import solve_beats as solve_beats
 from cardiosoft.batch import solve_orbit as solve_orbit
 from cardiosoft.batch import solve_static as solve_static
 from cardiosoft.experiment import run as run
@@ -29,8 +28,9 @@ from cardiosoft.geometry import cavity_volume as cavity_volume
 from cardiosoft.pump import PumpSurrogate as PumpSurrogate
 from cardiosoft.pump import load as load_pump
 from cardiosoft.results import RunResult as RunResult
-from cardiosoft.results import summary_records as summary_records
 from cardiosoft.scene import load_scene as load_scene
+from cardiosoft.scene_tools import solve_beats as solve_beats
+from cardiosoft.scene_tools import summary_records as summary_records
 from cardiosoft.solve import SolverConfig as SolverConfig
 from cardiosoft.solve import preset as preset
 from cardiosoft.sweep import design_sweep as design_sweep

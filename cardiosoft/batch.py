@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 
 import diffrax
 import equinox as eqx
@@ -95,8 +96,6 @@ from cardiosoft.circuit import (
 )
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
 from cardiosoft.metrics import beat_metrics, trapezoid
-from cardiosoft.network.loop_batch import solve_loop
-from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
 from cardiosoft.shooting import orbit_beat, shoot_periodic
@@ -356,10 +355,9 @@ def solve_beats(
 
     **Arguments:**
 
-    - ``scene``: a :class:`~cardiosoft.scene.Scene`, a shipped scene's name or a scene file.
-      A closed-loop scene (:class:`~cardiosoft.network.loop_scene.LoopScene`) goes to
-      :func:`cardiosoft.network.loop_batch.solve_loop` (``omega`` and ``shortening`` set every pump
-      of it; its metrics are :class:`~cardiosoft.network.loop_batch.LoopMetrics`).
+    - ``scene``: an open-loop :class:`~cardiosoft.scene.Scene`, a shipped scene's name or a
+      scene file. :func:`cardiosoft.solve_beats` (:func:`cardiosoft.scene_tools.solve_beats`)
+      takes a closed loop too.
     - ``omega``, ``shortening``: the design (dimensionless); ``bpm``: beats per minute;
       ``afterload``: column head (Pa) of a water-column scene. Scalars or 1-D arrays, broadcast
       to one batch axis; ``None`` keeps the scene's value(s).
@@ -388,10 +386,11 @@ def solve_beats(
     With an ensemble, every array but ``members`` has the shape ``(S, M, ...)`` (draws, then
     members), and ``message((s, i))`` speaks of draw s of member i.
     """
-    scene = scene if isinstance(scene, Scene | LoopScene) else load_scene(scene)
-    if isinstance(scene, LoopScene):
-        return _solve_loop_scene(
-            scene, omega, shortening, bpm, afterload, beats, save, steady, energy, pump, config
+    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else scene
+    if not isinstance(scene, Scene):  # the one batch solve of any scene is above this layer
+        raise TypeError(
+            f"scene {scene.name}: batch.solve_beats solves an open-loop scene; "
+            "cardiosoft.solve_beats takes any scene"
         )
     if scene.static:
         raise ValueError(f"scene {scene.name} is static: use solve_static")
@@ -412,30 +411,6 @@ def solve_beats(
     if size is not None:
         metrics, traces, out = unflatten((metrics, traces, out), size)
     return _solution(scene, members, config, metrics, traces, out, beats is not None)
-
-
-def _solve_loop_scene(
-    scene, omega, shortening, bpm, afterload, beats, save, steady, energy, pump, config
-) -> BeatSolution:
-    """:func:`solve_beats` of a closed-loop scene
-    (:func:`cardiosoft.network.loop_batch.solve_loop`)."""
-    if afterload is not None:
-        raise ValueError(f"afterload: scene {scene.name} is a closed loop, with no column head")
-    if energy:
-        raise ValueError(
-            f"energy: scene {scene.name} is a closed loop, which keeps no energy account yet"
-        )
-    return solve_loop(
-        scene,
-        bpm=bpm,
-        omega=omega,
-        shortening=shortening,
-        beats=beats,
-        save=save,
-        steady=steady,
-        pump=pump,
-        config=config,
-    )
 
 
 def solve_orbit(
@@ -465,7 +440,7 @@ def solve_orbit(
     (the design search does so, #13). A start that is not finite begins at rest instead (that
     member is then not steady). The other arguments are those of :func:`solve_beats`.
     """
-    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else scene
     if scene.static:
         raise ValueError(f"scene {scene.name} is static: it has no orbit")
     if save not in ("traces", "metrics"):
@@ -540,7 +515,7 @@ def solve_static(
     with draws, ``scene_draws``: of these strokes only ``column_diameter`` and
     ``cable_friction`` matter) gives arrays of shape ``(S, M)``.
     """
-    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else scene
     if not scene.afterload.has_heads:
         raise ValueError(f"scene {scene.name}: quasi-static strokes need a water-column afterload")
     members = _members(scene, omega, shortening, None, afterload)

@@ -8,19 +8,16 @@ records (:mod:`cardiosoft.results`).
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
+import os
 
 import numpy as np
 
 from cardiosoft._validate import check_range
-from cardiosoft.batch import default_config, solve_beats, solve_static
-from cardiosoft.network.loop_batch import loop_config
-from cardiosoft.network.loop_results import configure_loop, run_loop
-from cardiosoft.network.loop_scene import LoopScene
-from cardiosoft.pump import PumpSurrogate, check_pump_name, load
-from cardiosoft.results import RunResult, member_results
-from cardiosoft.scene import ACCURACY, ADDABLE_EFFECTS, RANGES, Scene, load_scene
+from cardiosoft.pump import PumpSurrogate, check_pump_name
+from cardiosoft.results import RunResult
+from cardiosoft.scene import Scene, load_scene
+from cardiosoft.scene_tools import check_supported, tools
 from cardiosoft.units import mmHg
 
 __all__ = ["configure", "run", "run_designs"]
@@ -38,43 +35,14 @@ def configure(
     effects=(),
 ) -> Scene:
     """The scene with the user's overrides (user units), validated; see :func:`run`."""
-    if not isinstance(scene, Scene | LoopScene):
+    if isinstance(scene, str | os.PathLike):
         scene = load_scene(scene, pump=pump)
     elif pump is not None and pump != scene.pump:
         scene = scene.replace(pump=check_pump_name(pump))
     scene = _add_effects(scene, effects)
-    if isinstance(scene, LoopScene):
-        return configure_loop(
-            scene,
-            omega=omega,
-            shortening=shortening,
-            bpm=bpm,
-            afterload=afterload,
-            accuracy=accuracy,
-        )
-    changes = {}
-    for name, value, unit, field in (
-        ("omega", omega, "", "omega"),
-        ("shortening C", shortening, "", "shortening"),
-        ("bpm", bpm, "bpm", "bpm"),
-    ):
-        if value is not None:
-            check_range(name, value, unit, *RANGES[field], lo_open=field == "bpm")
-            changes[field] = float(value)
-    if afterload is not None:
-        if not scene.afterload.has_heads:
-            raise ValueError(
-                f"afterload: scene {scene.name} has a {scene.afterload_type} "
-                "afterload; --afterload sets water-column heads"
-            )
-        values = tuple(float(a) for a in np.atleast_1d(afterload))
-        check_range("afterload", values, "mmHg", *RANGES["afterloads"])
-        changes["afterloads"] = tuple(v * mmHg for v in values)
-    if accuracy is not None:
-        if accuracy not in ACCURACY:
-            raise ValueError(f"accuracy = {accuracy!r}: allowed {', '.join(ACCURACY)}")
-        changes["accuracy"] = accuracy
-    return scene.replace(**changes) if changes else scene
+    return tools(scene).configure(
+        scene, omega=omega, shortening=shortening, bpm=bpm, afterload=afterload, accuracy=accuracy
+    )
 
 
 def _add_effects(scene, effects):
@@ -82,13 +50,11 @@ def _add_effects(scene, effects):
     effects = tuple(effects)
     if not effects:
         return scene
-    loop = isinstance(scene, LoopScene)
-    allowed = () if loop or scene.static else ADDABLE_EFFECTS
+    allowed = tools(scene).addable_effects(scene)
     for effect in effects:
         if effect not in allowed:
-            none = "none (a closed loop)" if loop else "none (a static scene)"
             raise ValueError(
-                f"effect = {effect!r}: scene {scene.name} can add {', '.join(allowed) or none}; "
+                f"effect = {effect!r}: scene {scene.name} can add {', '.join(allowed) or 'none'}; "
                 "the other effects need their parameters: list them in a scene file"
             )
     return scene.replace(effects=tuple(dict.fromkeys(scene.effects + effects)))
@@ -151,19 +117,9 @@ def run(
         if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer):
             raise ValueError(f"max_steps = {max_steps!r}: allowed a whole number in [100, 1e7]")
         check_range("max_steps", max_steps, "steps", 100, 1e7)
-        preset = loop_config if isinstance(scene, LoopScene) else default_config
-        config = dataclasses.replace(preset(scene), max_steps=int(max_steps))
-    if isinstance(scene, LoopScene):
-        if energy:
-            raise ValueError(
-                f"energy: scene {scene.name} is a closed loop, which keeps no energy account yet"
-            )
-        return run_loop(scene, beats=beats, steady=steady, config=config, pump=pump)
-    if scene.afterload.has_heads:
-        labels = [f"{h / mmHg:g} mmHg" for h in scene.afterloads]
-    else:
-        labels = [scene.name]
-    return _simulate(scene, labels, {}, beats, steady, pump, energy, config)
+        config = dataclasses.replace(tools(scene).preset(scene), max_steps=int(max_steps))
+    kind = tools(scene)
+    return kind.run(scene, beats=beats, steady=steady, energy=energy, config=config, pump=pump)
 
 
 def run_designs(
@@ -184,12 +140,7 @@ def run_designs(
     designs of one sweep alike: the batch runs until its slowest member reaches steady state.
     """
     scene = configure(scene, bpm=bpm, afterload=afterload, accuracy=accuracy)
-    if isinstance(scene, LoopScene):
-        raise ValueError(
-            f"scene {scene.name} is a closed loop: give its pumps' designs as members of "
-            "cardiosoft.network.loop_batch.solve_loop(members={'lv.omega': ...}) or run() one "
-            "design"
-        )
+    check_supported(scene, "designs", "designs")
     designs = [tuple(d) for d in designs]
     if not designs or any(len(d) != 2 for d in designs):
         raise ValueError(
@@ -209,23 +160,4 @@ def run_designs(
     members = {"omega": np.asarray(omegas), "shortening": np.asarray(shortenings)}
     if scene.afterload.has_heads:
         members["afterload"] = np.asarray(members_heads)
-    return _simulate(scene, labels, members, beats, steady, pump)
-
-
-def _simulate(scene: Scene, labels, members, beats, steady, pump, energy=False, config=None):
-    """Solve the members (all the scene's afterloads by default) and label the records."""
-    pump = load(scene.pump) if pump is None else pump
-    options = dict(beats=beats, steady=steady, energy=energy, pump=pump, config=config)
-    if scene.static:
-        static = solve_static(scene, **members, pump=pump)
-        return RunResult(scene, member_results(labels, None, static, pump.domain))
-    if not scene.afterload.has_heads:
-        dynamic = solve_beats(scene, **members, **options)
-        return RunResult(scene, member_results(labels, dynamic, None, pump.domain))
-    # Compiling the dynamic solve takes seconds; the quasi-static strokes compile on a second
-    # thread meanwhile (JAX traces and compiles thread-safely).
-    with concurrent.futures.ThreadPoolExecutor(1) as pool:
-        pending = pool.submit(solve_static, scene, **members, pump=pump)
-        dynamic = solve_beats(scene, **members, **options)
-        static = pending.result()
-    return RunResult(scene, member_results(labels, dynamic, static, pump.domain))
+    return tools(scene).simulate_members(scene, labels, members, beats, steady, pump)

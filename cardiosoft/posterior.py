@@ -165,15 +165,9 @@ def ensemble_run(
     ``config`` as in :func:`cardiosoft.batch.solve_beats`; beat after beat, the draws get at
     least :data:`ENSEMBLE_MAX_BEATS` beats to reach their steady state."""
     from cardiosoft.batch import solve_beats, solve_static
-    from cardiosoft.network.loop_scene import LoopScene
+    from cardiosoft.scene_tools import check_supported
 
-    if isinstance(scene, LoopScene):
-        raise ValueError(
-            f"--uncertainty: scene {scene.name} is a closed loop, whose ensemble is not "
-            "supported yet"
-        )
-    if scene.static:
-        raise ValueError(f"--uncertainty: scene {scene.name} is static; use bench-dynamic")
+    check_supported(scene, "uncertainty", "--uncertainty")
     draws = _scene_draws(scene, posterior)
     scene = scene.replace(max_beats=max(scene.max_beats, ENSEMBLE_MAX_BEATS))
     members = dict(omega=omega, shortening=shortening, afterload=afterload)

@@ -13,8 +13,6 @@ import numpy as np
 
 from cardiosoft.batch import BeatSolution, StaticSolution
 from cardiosoft.metrics import BeatMetrics
-from cardiosoft.network.loop_records import loop_summary_records
-from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.pump import Domain
 from cardiosoft.scene import Scene
 from cardiosoft.units import ml, mmHg
@@ -266,10 +264,8 @@ def member_results(
 
 
 def summary_records(result: RunResult) -> list[dict]:
-    """One JSON-ready record per member, in user units (``summary.json``); a closed loop's by
-    :func:`cardiosoft.network.loop_records.loop_summary_records`."""
-    if isinstance(result.scene, LoopScene):
-        return loop_summary_records(result)
+    """One JSON-ready record per member of an open-loop scene's run, in user units
+    (``summary.json``); :func:`cardiosoft.summary_records` takes any scene's."""
     records = []
     for m in result.members:
         x = m.metrics

@@ -160,88 +160,6 @@ def parser(prog: str | None = None):
     return p
 
 
-# (header, unit, summary record key, format): one spec per table, so that headers, units and
-# cells cannot drift apart. The paper's rows reuse the bench spec with the same keys.
-_BENCH_COLUMNS = (
-    ("afterload", "mmHg", "afterload_mmHg", ".0f"),
-    ("static SV", "ml", "static_sv_ml", ".1f"),
-    ("dynamic SV", "ml", "dynamic_sv_ml", ".1f"),
-    ("peak force", "N", "peak_force_N", ".1f"),
-    ("mech. work", "J", "mech_work_J", ".2f"),
-    ("efficiency", "-", "efficiency", ".3f"),
-    ("EF", "-", "ef", ".2f"),
-    ("beats", "", "beats", "d"),
-)
-_CIRCULATION_COLUMNS = (
-    ("scene", "", "label", "s"),
-    ("SV", "ml", "dynamic_sv_ml", ".1f"),
-    ("EDV", "ml", "edv_ml", ".1f"),
-    ("ESV", "ml", "esv_ml", ".1f"),
-    ("EF", "-", "ef", ".2f"),
-    ("CO", "l/min", "cardiac_output_l_min", ".2f"),
-    ("peak force", "N", "peak_force_N", ".1f"),
-    ("mech. work", "J", "mech_work_J", ".2f"),
-    ("beats", "", "beats", "d"),
-)
-
-
-def _is_loop(scene) -> bool:
-    from cardiosoft.network.loop_scene import LoopScene
-
-    return isinstance(scene, LoopScene)
-
-
-def _design(scene) -> dict:
-    """The design of the summary: Omega and C, or each pump's of a closed loop."""
-    if not _is_loop(scene):
-        return {"omega": scene.omega, "shortening": scene.shortening}
-    pumps = {c: getattr(scene, c) for c in scene.pumps}
-    return {"pumps": {c: {"omega": p.omega, "shortening": p.shortening} for c, p in pumps.items()}}
-
-
-def _heading(scene) -> str:
-    from cardiosoft.pump import DEFAULT_ARTIFACT
-
-    # the surrogate is named when it is not the default, which every other run uses
-    surrogate = [] if scene.pump == DEFAULT_ARTIFACT else [f"pump {scene.pump}"]
-    if not _is_loop(scene):
-        design = f"Omega {scene.omega:g}, C {scene.shortening:g}"
-        return ", ".join([f"{scene.name} at {scene.bpm:g} bpm", design, *surrogate])
-    pumps = [
-        f"{c.upper()} pump Omega {getattr(scene, c).omega:g}, C {getattr(scene, c).shortening:g}"
-        for c in scene.pumps
-    ]
-    return ", ".join([f"{scene.name} (closed loop) at {scene.bpm:g} bpm", *pumps, *surrogate])
-
-
-def _table(records, scene, paper, *, bands: bool = False) -> str:
-    """The run's table; with ``bands``, only the metrics with a ``<key>_band`` (and the member
-    column), each cell the best estimate and its band ``[low, high]``."""
-    from cardiosoft.console import fmt, table
-
-    if _is_loop(scene):
-        from cardiosoft.network.loop_records import loop_table
-
-        return loop_table(records)
-    columns = _BENCH_COLUMNS if scene.afterload.has_heads else _CIRCULATION_COLUMNS
-    if bands:
-        member = ("afterload_mmHg", "label")
-        columns = [c for c in columns if c[2] in member or f"{c[2]}_band" in records[0]]
-
-    def cell(r, key, spec):
-        band = r.get(f"{key}_band") if bands else None
-        text = fmt(r.get(key), spec)
-        return text if band is None else f"{text} [{fmt(band[0], spec)}, {fmt(band[1], spec)}]"
-
-    rows = []
-    for r in records:
-        rows.append([cell(r, key, spec) for _, _, key, spec in columns])
-        if paper is not None and r.get("afterload_mmHg") in paper:
-            p = {**paper[r["afterload_mmHg"]], "afterload_mmHg": None}
-            rows.append(["  paper", *[fmt(p.get(key), spec) for _, _, key, spec in columns[1:]]])
-    return table([c[0] for c in columns], [c[1] for c in columns], rows)
-
-
 def _paper_values():
     from cardiosoft import datasets
     from cardiosoft.units import mmHg
@@ -261,31 +179,10 @@ def _paper_values():
     }
 
 
-_TRACE_COLUMNS = (
-    ("time_s", "time", 1.0),
-    ("pull_mm", "pull", "mm"),
-    ("volume_ml", "volume", "ml"),
-    ("pump_pressure_mmHg", "pump_pressure", "mmHg"),
-    ("afterload_pressure_mmHg", "node_pressure", "mmHg"),
-    ("outflow_ml_per_s", "outflow", "ml"),
-    ("cable_force_N", "cable_force", 1.0),
-    ("column_volume_ml", "column_volume", "ml"),
-    ("shell_pull_mm", "shell_pull", "mm"),
-)
-"""traces.csv's columns: (header, trace, scale: 1 or the name of a cardiosoft.units unit)."""
-
-
 def _write_traces(path: Path, result) -> None:
-    from cardiosoft import units
+    from cardiosoft.scene_tools import tools
 
-    columns = [
-        (head, key, getattr(units, scale) if isinstance(scale, str) else scale)
-        for head, key, scale in _TRACE_COLUMNS
-    ]
-    if _is_loop(result.scene):
-        from cardiosoft.network.loop_records import loop_trace_columns
-
-        columns = loop_trace_columns(result.members[0].traces)
+    columns = tools(result.scene).trace_columns(result)
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["member", *[c[0] for c in columns]])
@@ -306,13 +203,14 @@ def _write_traces(path: Path, result) -> None:
 def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> list[Path]:
     """summary.json, traces.csv and the figure, all moved into place together or none."""
     from cardiosoft.files import write_together
+    from cardiosoft.scene_tools import tools
 
     written = ["summary.json", "traces.csv"] + (["figure.png"] if plot else [])
     summary = {
         "scene": result.scene.name,
         "pump": result.scene.pump,
         "bpm": result.scene.bpm,
-        **_design(result.scene),
+        **tools(result.scene).design(result.scene),
         "records": records,
         **(extra or {}),
     }
@@ -320,12 +218,7 @@ def _write_outputs(out_dir: Path, result, records, plot: bool, extra=None) -> li
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         _write_traces(staging / "traces.csv", result)
         if plot:
-            from cardiosoft.plots import plot_closed_loop, plot_fig10
-
-            if _is_loop(result.scene):
-                plot_closed_loop(result, staging / "figure.png")
-            else:
-                plot_fig10(result, staging / "figure.png", records=records)
+            tools(result.scene).plot(result, staging / "figure.png", records)
     return [out_dir / name for name in written]
 
 
@@ -334,6 +227,7 @@ def _configure(args, out_dir):
     from cardiosoft._validate import check_range
     from cardiosoft.experiment import configure
     from cardiosoft.files import check_writable_folder, refuse_overwrite
+    from cardiosoft.scene_tools import check_supported
 
     if out_dir is not None:
         check_writable_folder(out_dir)
@@ -351,26 +245,21 @@ def _configure(args, out_dir):
     )
     if args.beats is not None:
         check_range("beats", args.beats, "beats", 1, 500)
-    loop = _is_loop(scene)
-    if args.compare_paper and (loop or not scene.afterload.has_heads):
-        raise ValueError(f"--compare-paper: scene {scene.name} is not the paper's bench")
-    if args.verify and loop:
-        raise ValueError(f"--verify: not available for a closed-loop scene ({scene.name}) yet")
+    for what in ("compare_paper", "verify", "uncertainty"):
+        if getattr(args, what):
+            check_supported(scene, what, "--" + what.replace("_", "-"))
     if args.explain and not args.uncertainty:
         raise ValueError("--explain: explains the bands of --uncertainty; give both")
-    if args.uncertainty and (loop or scene.static):
-        kind = "a closed loop" if loop else "static"
-        raise ValueError(
-            f"--uncertainty: scene {scene.name} is {kind}; the posterior's ensemble runs on the "
-            "dynamic pump scenes (bench-dynamic, lv-systemic, rv-pulmonary or your own)"
-        )
     return scene
 
 
 def _print_table(result, records, compare_paper: bool) -> None:
     paper = _paper_values() if compare_paper else None
-    print(_heading(result.scene) + ("   (paper: 30 bpm)" if paper is not None else ""))
-    print(_table(records, result.scene, paper))
+    from cardiosoft.scene_tools import tools
+
+    kind = tools(result.scene)
+    print(kind.heading(result.scene) + ("   (paper: 30 bpm)" if paper is not None else ""))
+    print(kind.table(result.scene, records, paper))
 
 
 def _uncertainty(args, scene, records, console, posterior) -> dict:
@@ -429,7 +318,7 @@ def main(argv=None, prog: str | None = None) -> int:
     jax.config.update("jax_enable_x64", True)
     from cardiosoft.console import Console, fail, report_members
     from cardiosoft.experiment import run
-    from cardiosoft.results import summary_records
+    from cardiosoft.scene_tools import summary_records, tools
 
     console = Console(quiet=args.quiet, strict=args.strict)
     if args.scene.endswith(".json"):  # an svZeroDSolver model: the network's own run
@@ -456,7 +345,7 @@ def main(argv=None, prog: str | None = None) -> int:
             if scene.static
             else "compiling, then solving beat by beat to the periodic steady state"
         )
-        n = 1 if _is_loop(scene) else max(1, len(scene.afterloads))
+        n = tools(scene).member_count(scene)
         console.say(f"{scene.name}: {n} afterload(s), {scene.bpm:g} bpm; {what} ...")
         start = time.perf_counter()
         result = run(
@@ -481,7 +370,7 @@ def main(argv=None, prog: str | None = None) -> int:
                 f"95 % predictive bands ({uncertainty['draws']} posterior draws plus the model "
                 "discrepancy; --out: summary.json has the draws' own bands too)"
             )
-            print(_table(records, result.scene, None, bands=True))
+            print(tools(result.scene).table(result.scene, records, bands=True))
     if args.explain:
         from cardiosoft.explain import explain
 

@@ -444,7 +444,7 @@ def simulate(*args):
     ("args", "message"),
     [
         (["--afterload", "90"], "afterload: scene heart is a closed loop"),
-        (["--verify"], "--verify: not available for a closed-loop scene"),
+        (["--verify"], "--verify: scene heart is a closed loop"),
         (["--omega", "4"], "omega: scene heart has no soft pump"),
     ],
 )

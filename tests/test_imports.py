@@ -353,3 +353,37 @@ def test_no_private_names_of_cardiosoft_outside_the_package():
         for line, name in private_uses(ast.parse(_source(path)), owner):
             offenders.append(f"{where}:{line}: {name}")
     assert not offenders, "private names of cardiosoft used outside it:\n" + "\n".join(offenders)
+
+
+SCENE_KINDS = ("Scene", "LoopScene")
+
+
+def test_only_scene_tools_tells_the_kinds_of_scene_apart():
+    """No module but ``cardiosoft.scene_tools`` branches on the kind of scene (issue #40): an
+    ``isinstance`` against a scene class anywhere else would be a tool choosing a world. A
+    guard that a layer's own function got its own kind (``batch.solve_beats``) is the one
+    exception, listed here."""
+    allowed = {("cardiosoft.batch", "Scene")}  # solve_beats refuses a closed loop, naming why
+    offenders = []
+    for name, path in MODULES.items():
+        if name == "cardiosoft.scene_tools":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not (isinstance(node, ast.Call) and getattr(node.func, "id", "") == "isinstance"):
+                continue
+            kinds = {n.id for n in ast.walk(node.args[1]) if isinstance(n, ast.Name)}
+            for kind in kinds & set(SCENE_KINDS):
+                if (name, kind) not in allowed:
+                    offenders.append(f"{name}:{node.lineno}: isinstance(..., {kind})")
+    assert not offenders, "a branch on the kind of scene:\n" + "\n".join(offenders)
+
+
+def test_every_kind_of_scene_answers_every_question():
+    """Each kind's namespace in ``scene_tools.TOOLS`` has every name the tools ask for (those
+    of ``open_loop_tools``, less what only a scene that takes ``designs`` needs)."""
+    from cardiosoft import open_loop_tools, scene_tools
+
+    asked = set(open_loop_tools.__all__) - {"ABILITIES", "simulate_members"}
+    for kind, namespace in scene_tools.TOOLS.items():
+        missing = sorted(n for n in asked if not callable(getattr(namespace, n, None)))
+        assert not missing, f"{kind.__name__}'s {namespace.__name__} lacks {missing}"

@@ -351,10 +351,9 @@ def main(argv=None, prog: str | None = None) -> int:
 
     args = parser(prog).parse_args(argv)
     jax.config.update("jax_enable_x64", True)
-    from cardiosoft.design.optimiser import optimise
     from cardiosoft.files import refuse_overwrite
-    from cardiosoft.network.loop_scene import LoopScene
     from cardiosoft.scene import load_scene
+    from cardiosoft.scene_tools import tools
 
     console = Console(quiet=args.quiet, strict=args.strict)
     try:
@@ -365,10 +364,21 @@ def main(argv=None, prog: str | None = None) -> int:
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
         scene = load_scene(args.scene, pump=args.pump)
-        if isinstance(scene, LoopScene):
-            from cardiosoft.design.loop_cli import run_loop_design
+    except (ValueError, FileNotFoundError) as err:
+        return fail(err)
+    if tools(scene).unsupported(scene, "pump_design") is None:
+        return run_pump_design(scene, args, out_dir, console)
+    from cardiosoft.design.loop_cli import run_loop_design  # a closed loop: its pumps
 
-            return run_loop_design(scene, args, out_dir, console)
+    return run_loop_design(scene, args, out_dir, console)
+
+
+def run_pump_design(scene, args, out_dir: Path | None, console: Console) -> int:
+    """The pump's design in an open-loop scene from parsed arguments: returns the exit
+    status (the closed loop's: :func:`cardiosoft.design.loop_cli.run_loop_design`)."""
+    from cardiosoft.design.optimiser import optimise
+
+    try:
         for flag, value in (("--lap", args.lap), ("--rap", args.rap)):
             if value is not None:
                 raise ValueError(f"{flag}: only a closed-loop scene has atria; {scene.name} not")

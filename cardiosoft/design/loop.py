@@ -50,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import os
 import time
 
 import numpy as np
@@ -58,6 +59,7 @@ from cardiosoft._validate import check_range
 from cardiosoft.network.loop_batch import SIDES, solve_loop
 from cardiosoft.network.loop_scene import LoopScene, number_key
 from cardiosoft.scene import RANGES, load_scene
+from cardiosoft.scene_tools import check_supported
 from cardiosoft.units import ml, mmHg
 
 __all__ = [
@@ -405,9 +407,8 @@ def optimise_loop(
 
     t0 = time.perf_counter()
     say = progress or (lambda _msg: None)
-    scene = scene if isinstance(scene, LoopScene) else load_scene(scene)
-    if not isinstance(scene, LoopScene):
-        raise ValueError(f"scene = {scene.name!r} is not a closed loop")
+    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else scene
+    check_supported(scene, "loop_design", "optimise_loop")
     free = loop_free(scene, free)
     targets = _targets(target_co, lap, rap)
     check_range("max_evaluations", max_evaluations, "calls", 1, 1000)

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 
 import jax.numpy as jnp
 import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.scene import RANGES, Scene, load_scene
+from cardiosoft.scene_tools import check_supported
 
 __all__ = [
     "BOX_VARIABLES",
@@ -289,7 +291,8 @@ def build_problem(
     scene, target_sv, target_co, afterload, bpm, free, start, bounds, minimize, maximize, tol
 ) -> Problem:
     """Validate a design question (the arguments of :func:`cardiosoft.design.optimise`)."""
-    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else scene
+    check_supported(scene, "pump_design", "optimise")
     if scene.static:
         raise ValueError(
             f"scene = {scene.name!r} is static (no beats, no rate): use bench-dynamic or a "

@@ -216,8 +216,8 @@ def main(argv=None, prog: str | None = None) -> int:
 
     from cardiosoft.console import fail
     from cardiosoft.files import atomic_path, refuse_overwrite
-    from cardiosoft.network.loop_scene import LoopScene
     from cardiosoft.scene import load_scene
+    from cardiosoft.scene_tools import check_supported
 
     args = parser(prog).parse_args(argv)
     jax.config.update("jax_enable_x64", True)
@@ -225,11 +225,7 @@ def main(argv=None, prog: str | None = None) -> int:
         if not 1 <= args.beats <= 500:
             raise ValueError(f"--beats = {args.beats}: allowed 1 to 500")
         scene = load_scene(args.svzerod)
-        if not isinstance(scene, LoopScene):
-            raise ValueError(
-                f"--svzerod {args.svzerod}: only the closed loops are written yet (heart, "
-                "soft-lv, soft-rv, tah), not the bench's scenes"
-            )
+        check_supported(scene, "export", f"--svzerod {args.svzerod}")
         refuse_overwrite(Path(args.out), args.force)
         model = to_svzerod(scene, args.units, args.beats)
     except (ValueError, OSError) as err:

@@ -1,0 +1,120 @@
+"""What the tools do with a closed-loop scene (:class:`~cardiosoft.network.loop_scene.LoopScene`):
+the same namespace as the open-loop scenes' (:mod:`cardiosoft.open_loop_tools`, which lists its
+names), answered by the closed loop's modules (:mod:`cardiosoft.scene_tools` picks it)."""
+
+from __future__ import annotations
+
+from cardiosoft.network.loop_batch import loop_config as preset
+from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_records import loop_summary_records as summary_records
+from cardiosoft.network.loop_records import loop_table, loop_trace_columns
+from cardiosoft.network.loop_results import configure_loop as configure
+from cardiosoft.network.loop_results import run_loop
+from cardiosoft.network.loop_scene import LoopScene
+from cardiosoft.pump import DEFAULT_ARTIFACT
+
+__all__ = [
+    "addable_effects", "configure", "design", "heading", "member_count",
+    "plot", "preset", "run", "solve_beats", "summary_records", "table", "trace_columns",
+    "unsupported",
+]  # fmt: skip
+
+_UNSUPPORTED = {
+    "compare_paper": "is not the paper's bench",
+    "verify": "is a closed loop, which --verify does not check yet",
+    "uncertainty": "is a closed loop, whose posterior ensemble is not supported yet",
+    "designs": "is a closed loop: give its pumps' designs as members of "
+    "cardiosoft.network.loop_batch.solve_loop(members={'lv.omega': ...}) or run() one design",
+    "energy": "is a closed loop, which keeps no energy account yet",
+    "pump_design": "is a closed loop: cardiosoft.design.loop.optimise_loop designs its pumps",
+}
+
+
+def unsupported(scene: LoopScene, what: str) -> str | None:
+    return _UNSUPPORTED.get(what)
+
+
+def _refuse(scene: LoopScene, what: str, option: str) -> None:
+    raise ValueError(f"{option}: scene {scene.name} {_UNSUPPORTED[what]}")
+
+
+def addable_effects(scene: LoopScene) -> tuple[str, ...]:
+    return ()
+
+
+def member_count(scene: LoopScene) -> int:
+    return 1
+
+
+def run(scene: LoopScene, *, beats=None, steady="beats", energy=False, config=None, pump=None):
+    """One member, the scene itself (:func:`~cardiosoft.network.loop_results.run_loop`)."""
+    if energy:
+        _refuse(scene, "energy", "energy")
+    return run_loop(scene, beats=beats, steady=steady, config=config, pump=pump)
+
+
+def solve_beats(
+    scene: LoopScene,
+    *,
+    omega=None,
+    shortening=None,
+    bpm=None,
+    afterload=None,
+    beats=None,
+    save="traces",
+    steady="beats",
+    energy=False,
+    pump=None,
+    config=None,
+    scene_draws=None,
+):
+    """:func:`cardiosoft.batch.solve_beats` of a closed loop:
+    :func:`~cardiosoft.network.loop_batch.solve_loop`, ``omega`` and ``shortening`` setting
+    every pump."""
+    if afterload is not None:
+        raise ValueError(f"afterload: scene {scene.name} is a closed loop, with no column head")
+    if energy:
+        _refuse(scene, "energy", "energy")
+    if scene_draws is not None:
+        _refuse(scene, "uncertainty", "scene_draws")
+    return solve_loop(
+        scene,
+        bpm=bpm,
+        omega=omega,
+        shortening=shortening,
+        beats=beats,
+        save=save,
+        steady=steady,
+        pump=pump,
+        config=config,
+    )
+
+
+def table(scene: LoopScene, records, paper=None, *, bands: bool = False) -> str:
+    return loop_table(records)
+
+
+def trace_columns(result) -> list[tuple[str, str, float]]:
+    return loop_trace_columns(result.members[0].traces)
+
+
+def plot(result, path, records) -> None:
+    from cardiosoft.plots import plot_closed_loop
+
+    plot_closed_loop(result, path)
+
+
+def heading(scene: LoopScene) -> str:
+    # the surrogate is named when it is not the default, which every other run uses
+    surrogate = [] if scene.pump == DEFAULT_ARTIFACT else [f"pump {scene.pump}"]
+    pumps = [
+        f"{c.upper()} pump Omega {getattr(scene, c).omega:g}, C {getattr(scene, c).shortening:g}"
+        for c in scene.pumps
+    ]
+    return ", ".join([f"{scene.name} (closed loop) at {scene.bpm:g} bpm", *pumps, *surrogate])
+
+
+def design(scene: LoopScene) -> dict:
+    """The design of ``summary.json``: each pump's Omega and C."""
+    pumps = {c: getattr(scene, c) for c in scene.pumps}
+    return {"pumps": {c: {"omega": p.omega, "shortening": p.shortening} for c, p in pumps.items()}}
