@@ -231,31 +231,21 @@ def _read_out(net, ts, xs):
     return zs, jax.vmap(net.outputs)(ts, xs, zs), jnp.all(converged)
 
 
+def _integrate(net, x0, t_end, jumps, config, ts=None):
+    """The network's states from ``x0`` at t = 0 to ``t_end`` (saved at ``ts``, else at the
+    end)."""
+    field = lambda t, x, net: net.vector_field(t, x)  # noqa: E731
+    return integrate(field, x0, 0.0, t_end, args=net, ts=ts, jump_ts=jumps, config=config)
+
+
 @eqx.filter_jit
 def _one_beat(net, x0, period, jumps, config):
     """The state after one beat from ``x0`` at t = 0 (the forcing repeats every beat)."""
-    sol = integrate(
-        lambda t, x, net: net.vector_field(t, x),
-        x0,
-        0.0,
-        period,
-        args=net,
-        jump_ts=jumps,
-        config=config,
-    )
+    sol = _integrate(net, x0, period, jumps, config)
     return sol.ys[-1], sol.result
 
 
 @eqx.filter_jit
 def _run(net, x0, t_end, ts, jumps, config):
-    sol = integrate(
-        lambda t, x, net: net.vector_field(t, x),
-        x0,
-        0.0,
-        t_end,
-        args=net,
-        ts=ts,
-        jump_ts=jumps,
-        config=config,
-    )
+    sol = _integrate(net, x0, t_end, jumps, config, ts)
     return (*_read_out(net, ts, sol.ys), sol.result, sol.stats["num_accepted_steps"])
