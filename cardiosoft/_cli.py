@@ -62,19 +62,26 @@ def allowed(field: str, left: str = "[") -> str:
     return f"{left}{lo:g}, {hi:g}]"
 
 
-def add_scene_option(parser, *, static: bool = True, loops: bool = False) -> None:
+def add_scene_option(
+    parser, *, static: bool = True, loops: bool = False, models: bool = False
+) -> None:
     """``--scene``: a shipped scene or a .toml file (``static``: bench-static listed too;
-    ``loops``: the closed-loop scenes too)."""
+    ``loops``: the closed-loop scenes too; ``models``: an svZeroDSolver model too)."""
     from cardiosoft.scene import LOOP_SCENE_NAMES, SCENE_NAMES
 
     names = [s for s in SCENE_NAMES if static or s != "bench-static"]
     closed = f"; closed loops: {', '.join(LOOP_SCENE_NAMES)}" if loops else ""
+    model = (
+        ", or an svZeroDSolver model .json (run as svZeroDSolver runs it; --out writes "
+        "traces.csv under its variable names)"
+        if models
+        else ""
+    )
     parser.add_argument(
         "--scene",
         default="bench-dynamic",
-        help=f"shipped scene ({', '.join(names)}{closed}), a scene .toml file, or an "
-        "svZeroDSolver model .json (run as svZeroDSolver runs it; --out writes traces.csv under "
-        "its variable names) (default: bench-dynamic)",
+        help=f"shipped scene ({', '.join(names)}{closed}), a scene .toml file{model} "
+        "(default: bench-dynamic)",
     )
     add_pump_option(parser)
 

@@ -56,7 +56,7 @@ def parser(prog: str | None = None):
         failure="a member's solve failed or it did not reach the periodic steady state",
         output="summary.json",
     )
-    add_scene_option(p, loops=True)
+    add_scene_option(p, loops=True, models=True)
     p.add_argument(
         "--bpm", type=float, help=f"beats per minute, {allowed('bpm', '(')} (default: the scene's)"
     )
