@@ -284,7 +284,8 @@ class Beats(eqx.Module):
     beats: jax.Array
     """Number of beats integrated."""
     residual: jax.Array
-    """Largest change of a periodic state over the last beat (ml, ml/s or mmHg)."""
+    """The last beat's change (by default the largest change of a periodic state: ml, ml/s or
+    mmHg)."""
     volume_drift: jax.Array
     """Largest |total volume - initial total| at any beat's end, relative to the first."""
     result: diffrax.RESULTS
@@ -306,8 +307,8 @@ def _one_beat(field, period, y, save_ts, jump_ts, config):
     # end-of-interval bookkeeping (t1 minus 100 ULP, ~1500 HLO ops per member) folds away at
     # compile time, while the period stays an array leaf (a new bpm does not recompile).
     return integrate(
-        _in_phase, y, 0.0, 1.0, args=(field, period), ts=save_ts, jump_ts=jump_ts / period,
-        config=config,
+        _in_phase, y, 0.0, 1.0, args=(field, period), ts=save_ts,
+        jump_ts=None if jump_ts is None else jump_ts / period, config=config,
     )
 
 
@@ -341,6 +342,7 @@ def periodic_beats(
     tol,
     config: SolverConfig | None = None,
     observe: Callable[[jax.Array, dict], Any] | None = None,
+    change: Callable[[Any, Any], jax.Array] | None = None,
 ) -> Beats:
     """Integrate beat after beat until the cycle-to-cycle change is below ``tol`` in two
     beats in a row.
@@ -357,9 +359,12 @@ def periodic_beats(
     - ``ts``: save times of a beat, increasing from 0, the last one equal to ``period``; None
       integrates no sampled last beat (``observed`` is None, ``num_steps`` 0).
     - ``y0``: the state at the start of the first beat; ``jump_ts``: kinks of the forcing in
-      ``[0, period]``; ``total_volume``: ``y -> m^3`` for the conservation check.
+      ``[0, period]`` (None: none); ``total_volume``: ``y -> m^3`` for the conservation check
+      (None: no check, ``volume_drift`` 0).
     - ``max_beats`` (static): the most beats; with ``tol = 0`` exactly that many are run.
-    - ``tol``: steady-state tolerance in the units of :data:`PERIODIC_SCALES`.
+    - ``tol``: steady-state tolerance in the units of ``change``.
+    - ``change``: ``(y_start, y_end) -> scalar``, a beat's change; by default the largest
+      change of a named periodic state in the units of :data:`PERIODIC_SCALES`.
     - ``config``: a :class:`SolverConfig`.
     - ``observe``: ``(ts, ys) -> pytree``, applied to the last beat's states at ``ts``
       (:attr:`Beats.observed`); ``None`` keeps the states themselves. The beats before it are
@@ -370,7 +375,10 @@ def periodic_beats(
     stops its element and is reported in ``result``; nothing is raised.
     """
     config = preset("default") if config is None else config
+    change = _cycle_residual if change is None else change
     ftype = jnp.result_type(float)
+    if total_volume is None:
+        total_volume = lambda y: jnp.ones((), ftype)  # noqa: E731  (no drift to measure)
     v_ref = total_volume(y0)
 
     # Beat after beat saving only each beat's end (interpolating the samples of every beat was
@@ -381,7 +389,7 @@ def periodic_beats(
         sol = _one_beat(field, period, y, None, jump_ts, config)
         y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
         drift = jnp.maximum(drift, jnp.abs(total_volume(y_end) - v_ref) / jnp.abs(v_ref))
-        return y_end, beats + 1, _cycle_residual(y, y_end), residual, drift, sol.result, y
+        return y_end, beats + 1, change(y, y_end), residual, drift, sol.result, y
 
     def cond(carry):
         _, beats, residual, previous, _, result, _ = carry
