@@ -20,7 +20,11 @@ Every kind of scene answers the same questions through its own namespace
 - ``unsupported(scene, what)``: why this scene cannot do ``what`` (one of :data:`ABILITIES`),
   or None (:func:`cardiosoft.scene_tools.check_supported` raises with it);
 - ``simulate_members(scene, labels, members, ...)``: for a scene that takes ``designs``, the
-  members of :func:`cardiosoft.run_designs`.
+  members of :func:`cardiosoft.run_designs`;
+- ``column_heads(scene, given, action)``: the water-column heads (mmHg) a grid runs at, or
+  None; ``sweep_variables(scene)``, ``sweep_panels(scene)``, ``sweep_flags(scene, metrics, n,
+  domain)``: a sweep's metric variables, its maps' panels and its flagged points
+  (:mod:`cardiosoft.sweep`).
 """
 
 from __future__ import annotations
@@ -32,13 +36,20 @@ import numpy as np
 from cardiosoft._validate import check_range
 from cardiosoft.batch import default_config, solve_beats, solve_static
 from cardiosoft.pump import DEFAULT_ARTIFACT, PumpSurrogate, load
-from cardiosoft.results import RunResult, member_results, summary_records
+from cardiosoft.results import (
+    SWEEP_VARIABLES,
+    RunResult,
+    flagged_members,
+    member_results,
+    summary_records,
+)
 from cardiosoft.scene import ACCURACY, ADDABLE_EFFECTS, RANGES, Scene
 from cardiosoft.units import mmHg
 
 __all__ = [
-    "ABILITIES", "addable_effects", "configure", "design", "heading", "member_count", "plot",
-    "preset", "run", "simulate_members", "solve_beats", "summary_records", "table",
+    "ABILITIES", "addable_effects", "column_heads", "configure", "design", "heading",
+    "member_count", "plot", "preset", "run", "simulate_members", "solve_beats",
+    "summary_records", "sweep_flags", "sweep_panels", "sweep_variables", "table",
     "trace_columns", "unsupported",
 ]  # fmt: skip
 ABILITIES = (
@@ -230,3 +241,26 @@ def heading(scene: Scene) -> str:
 def design(scene: Scene) -> dict:
     """The design of ``summary.json``."""
     return {"omega": scene.omega, "shortening": scene.shortening}
+
+
+def column_heads(scene: Scene, given, action: str):
+    """The water-column heads (mmHg) of a grid: ``given`` or the scene's; None without a
+    column (:meth:`~cardiosoft.scene.Scene.column_heads_mmHg`)."""
+    return scene.column_heads_mmHg(given, action=action)
+
+
+def sweep_variables(scene: Scene) -> dict:
+    """A sweep's metric variables (:data:`cardiosoft.results.SWEEP_VARIABLES`)."""
+    return SWEEP_VARIABLES
+
+
+def sweep_panels(scene: Scene) -> tuple:
+    """A sweep map's panels (:data:`cardiosoft.sweep.maps.PANELS`)."""
+    from cardiosoft.sweep.maps import PANELS
+
+    return PANELS
+
+
+def sweep_flags(scene: Scene, metrics, n: int, domain) -> np.ndarray:
+    """:func:`cardiosoft.results.flagged_members`."""
+    return flagged_members(metrics, n, domain)

@@ -20,8 +20,10 @@ from cardiosoft.units import ml, mmHg
 __all__ = [
     "ENERGY_ROUNDOFF",
     "STORED_CHANGE_TOL",
+    "SWEEP_VARIABLES",
     "MemberResult",
     "RunResult",
+    "flagged_members",
     "flags",
     "member_results",
     "summary_records",
@@ -97,6 +99,52 @@ def _static_metrics(static: StaticSolution, i: int) -> dict[str, float]:
         "static_efficiency": float(static.efficiency[i]),
         "static_max_pressure": float(static.max_pressure[i]),
     }
+
+
+SWEEP_VARIABLES = {
+    "stroke_volume_ml": (
+        "stroke_volume",
+        ml,
+        "ml",
+        "stroke volume EDV - ESV (the bench: the peak column rise, the paper's dynamic SV)",
+    ),
+    "ejection_fraction": ("ejection_fraction", 1.0, "1", "ejection fraction SV / EDV"),
+    "peak_force_N": ("peak_force", 1.0, "N", "largest measured cable force during the pull"),
+    "mech_work_J": (
+        "mech_work",
+        1.0,
+        "J",
+        "mechanical work: the cable force integrated over the pull (the paper's M)",
+    ),
+    "efficiency": ("efficiency", 1.0, "1", "the paper's efficiency P_a SV / M"),
+    "hydraulic_work_J": ("hydraulic_work_paper", 1.0, "J", "the paper's hydraulic work P_a SV"),
+    "stroke_work_J": ("stroke_work", 1.0, "J", "area of the pressure-volume loop"),
+    "edv_ml": ("edv", ml, "ml", "end-diastolic (largest) pump volume"),
+    "esv_ml": ("esv", ml, "ml", "end-systolic (smallest) pump volume"),
+    "cardiac_output_l_min": (
+        "cardiac_output",
+        1000 * ml / 60.0,
+        "l/min",
+        "cardiac output SV / period",
+    ),
+}
+"""A sweep's metric variables of an open-loop scene (:mod:`cardiosoft.sweep`), ``{name:
+(BeatMetrics field, scale to the unit, unit, long name)}``: every one is in the last beat of
+the member."""
+
+
+def flagged_members(metrics, n: int, domain) -> np.ndarray:
+    """Whether :func:`flags` flags each of the first ``n`` members of a batch
+    solve's :class:`~cardiosoft.metrics.BeatMetrics` (on a copy: nothing is changed)."""
+    fields = {
+        f.name: np.asarray(getattr(metrics, f.name))[:n]
+        for f in dataclasses.fields(metrics)
+        if getattr(metrics, f.name) is not None
+    }
+    return np.array(
+        [bool(flags({k: float(v[i]) for k, v in fields.items()}, domain)) for i in range(n)],
+        dtype=bool,
+    )
 
 
 def flags(metrics: dict[str, float], domain: Domain) -> tuple[str, ...]:

@@ -82,7 +82,14 @@ BAD_INPUTS = {
     # nothing listens on the discard port: the connection is refused until the timeout
     "scheduler": ["--omega", "4", "--shortening", "0.4", "--scheduler", "tcp://127.0.0.1:9"],
     "missing option": ["--omega", "4"],
-}
+    "closed loop without a pump": ["--scene", "heart", "--omega", "4", "--shortening", "0.4"],
+    "head on a closed loop": [
+        "--scene", "soft-lv", "--omega", "4", "--shortening", "0.4", "--afterload", "60",
+    ],
+    "uncertainty on a closed loop": [
+        "--scene", "soft-lv", "--omega", "4", "--shortening", "0.4", "--uncertainty",
+    ],
+}  # fmt: skip
 """Each is checked through ``main`` in this process; :data:`AS_COMMANDS` also as commands."""
 AS_COMMANDS = ("N < 1", "unknown scene")
 
@@ -236,16 +243,16 @@ def test_in_memory_run_equals_the_file(swept):
 
 def test_a_chunk_that_raises_fails_its_points_only(swept, monkeypatch):
     ds, _ = swept
-    import cardiosoft.batch
+    import cardiosoft.open_loop_tools
 
-    solve = cardiosoft.batch.solve_beats
+    solve = cardiosoft.open_loop_tools.solve_beats
 
     def flaky(scene, **kw):
         if np.any(np.asarray(kw["bpm"]) == 60.0) and np.any(np.asarray(kw["omega"]) == 3.0):
             raise RuntimeError("injected failure")
         return solve(scene, **kw)
 
-    monkeypatch.setattr(cardiosoft.batch, "solve_beats", flaky)
+    monkeypatch.setattr(cardiosoft.open_loop_tools, "solve_beats", flaky)
     got = design_sweep("bench-dynamic", **KW)
     # C order over (omega, shortening, afterload, bpm): points 1 and 3 (omega 3, bpm 60) are
     # in chunks 0 and 1, which fail whole; chunk 2 (omega 4 only) does not
@@ -424,6 +431,46 @@ def test_grid_points_equal_simulate_at_their_designs(tmp_path, swept):
         # a difference of two states of ~100 (ml, ml/s, mmHg): held to what the states
         # themselves agree to, not relative to its own size
         assert float(point["residual"]) == pytest.approx(record["steady_residual"], abs=1e-6)
+
+
+@pytest.mark.slow
+def test_closed_loop_grid_points_equal_simulate_at_their_designs(tmp_path):
+    """A closed loop swept (``soft-lv``: the design is its pump's): each point's variables are
+    ``summary.json``'s numbers of the same name from ``simulate`` at that design (its own
+    solve, one member); its maps' panels are the pump's stroke volume, the cardiac output and
+    the pump's force.
+
+    The two solves are the same equations, but not the same steps: a batch of two rounds
+    otherwise than a batch of one, and near the valves' switches that flips the step
+    controller's choices. So they agree to the integration's accuracy, not to round-off: at the
+    default preset 1e-4 apart (measured), at "reference" (rtol 1e-10) at most 6.6e-10; held to
+    1e-8, 100 times that rtol."""
+    from cardiosoft import simulate
+
+    omegas = [3.5, 4.5]
+    got = design_sweep(
+        "soft-lv", omega=omegas, shortening=0.45, bpm=60, beats=2, accuracy="reference",
+        chunk=2, progress=False,
+    )  # fmt: skip
+    assert dict(got.sizes) == {"omega": 2, "shortening": 1, "bpm": 1}
+    assert got["left_sv_ml"].attrs["units"] == "ml"
+    assert "right_peak_force_N" not in got  # the right ventricle is native
+    panels = [p[0] for p in json.loads(got.attrs["map_panels"])]
+    assert panels == ["left_sv_ml", "left_co_l_min", "left_peak_force_N"]
+    numbers = [v for v in got.data_vars if got[v].attrs["units"] != "1" or v.endswith("_ef")]
+    assert len(numbers) >= 15
+    for omega in omegas:
+        out = tmp_path / f"omega-{omega:g}"
+        argv = ["--scene", "soft-lv", "--omega", str(omega), "--shortening", "0.45"]
+        argv += ["--bpm", "60", "--beats", "2", "--accuracy", "reference"]
+        argv += ["--no-plot", "--quiet", "--out", str(out)]
+        assert simulate.main(argv) == 0
+        (record,) = json.loads((out / "summary.json").read_text())["records"]
+        point = got.sel(omega=omega, shortening=0.45, bpm=60.0)
+        for name in numbers:
+            assert float(point[name]) == pytest.approx(record[name], rel=1e-8), (omega, name)
+        assert int(point["beats"]) == record["beats"] == 2
+        assert bool(point["flagged"]) == bool(record["flags"])
 
 
 def one_error_line(stderr: str) -> bool:

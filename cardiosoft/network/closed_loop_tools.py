@@ -4,19 +4,21 @@ names), answered by the closed loop's modules (:mod:`cardiosoft.scene_tools` pic
 
 from __future__ import annotations
 
+import numpy as np
+
 from cardiosoft.network.loop_batch import loop_config as preset
 from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.network.loop_records import loop_summary_records as summary_records
-from cardiosoft.network.loop_records import loop_table, loop_trace_columns
+from cardiosoft.network.loop_records import loop_table, loop_trace_columns, record_numbers
 from cardiosoft.network.loop_results import configure_loop as configure
-from cardiosoft.network.loop_results import run_loop
+from cardiosoft.network.loop_results import flat_metrics, loop_flags, pump_sides, run_loop
 from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.pump import DEFAULT_ARTIFACT
 
 __all__ = [
-    "addable_effects", "configure", "design", "heading", "member_count",
-    "plot", "preset", "run", "solve_beats", "summary_records", "table", "trace_columns",
-    "unsupported",
+    "addable_effects", "column_heads", "configure", "design", "heading", "member_count",
+    "plot", "preset", "run", "solve_beats", "summary_records", "sweep_flags", "sweep_panels",
+    "sweep_variables", "table", "trace_columns", "unsupported",
 ]  # fmt: skip
 
 _UNSUPPORTED = {
@@ -118,3 +120,40 @@ def design(scene: LoopScene) -> dict:
     """The design of ``summary.json``: each pump's Omega and C."""
     pumps = {c: getattr(scene, c) for c in scene.pumps}
     return {"pumps": {c: {"omega": p.omega, "shortening": p.shortening} for c, p in pumps.items()}}
+
+
+def sweep_variables(scene: LoopScene) -> dict:
+    """A sweep's metric variables (:mod:`cardiosoft.sweep`; every pump gets the point's
+    design): ``{name: (path in the metrics, scale to the unit, unit, long name)}``, named as
+    ``summary.json``'s records (:func:`~cardiosoft.network.loop_records.record_numbers`)."""
+    return record_numbers(pumps=pump_sides(scene))
+
+
+def sweep_panels(scene: LoopScene) -> tuple:
+    """A sweep map's three panels (``(variable, label, colour map)``): the first pump's stroke
+    volume, the cardiac output (the best design is the one that maximises it) and the first
+    pump's peak force."""
+    side = pump_sides(scene)[0]
+    return (
+        (f"{side}_sv_ml", f"{side} pump stroke volume [ml]", "viridis"),
+        ("left_co_l_min", "cardiac output [l/min]", "magma"),
+        (f"{side}_peak_force_N", f"{side} pump peak cable force [N]", "cividis"),
+    )
+
+
+def sweep_flags(scene: LoopScene, metrics, n: int, domain) -> np.ndarray:
+    """Whether :func:`~cardiosoft.network.loop_results.loop_flags` flags each of the first ``n``
+    members of a batch's metrics."""
+    sides = pump_sides(scene)
+    return np.array(
+        [bool(loop_flags(flat_metrics(metrics, i), sides, domain)) for i in range(n)], bool
+    )
+
+
+def column_heads(scene: LoopScene, given, action: str):
+    """A closed loop has no water column: None, and ``given`` heads are refused."""
+    if given is not None:
+        raise ValueError(
+            f"afterload: scene {scene.name} is a closed loop, which has no column head to {action}"
+        )
+    return None

@@ -7,41 +7,76 @@ import math
 
 from cardiosoft.units import ml, mm, mmHg
 
-__all__ = ["loop_summary_records", "loop_table", "loop_trace_columns"]
+__all__ = [
+    "LOOP_NUMBERS", "PUMP_NUMBERS", "SIDE_NUMBERS", "loop_summary_records", "loop_table",
+    "loop_trace_columns", "record_numbers",
+]  # fmt: skip
 
 
 def _none_if_nan(value):
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
+L_MIN = 1000 * ml / 60.0
+"""One l/min in m^3/s."""
+# One record's numbers, each once: (record key with {side}, {artery}, {atrium}; the side's
+# LoopMetrics field; scale to the unit; unit; long name). summary.json's records and a sweep's
+# variables (closed_loop_tools.sweep_variables) are both made from them.
+SIDE_NUMBERS = (
+    ("{side}_sv_ml", "stroke_volume", ml, "ml", "stroke volume EDV - ESV"),
+    ("{side}_edv_ml", "edv", ml, "ml", "end-diastolic (largest) ventricular volume"),
+    ("{side}_esv_ml", "esv", ml, "ml", "end-systolic (smallest) ventricular volume"),
+    ("{side}_ef", "ejection_fraction", 1.0, "1", "ejection fraction SV / EDV"),
+    ("{side}_co_l_min", "cardiac_output", L_MIN, "l/min", "cardiac output SV / period"),
+    ("{side}_net_output_l_min", "net_output", L_MIN, "l/min",
+     "mean flow out of the arterial compartment into the circulation"),
+    ("{artery}_systolic_mmHg", "arterial_systolic", mmHg, "mmHg", "largest arterial pressure"),
+    ("{artery}_diastolic_mmHg", "arterial_diastolic", mmHg, "mmHg",
+     "smallest arterial pressure"),
+    ("{artery}_mean_mmHg", "arterial_mean", mmHg, "mmHg", "time mean of the arterial pressure"),
+    ("{atrium}_mean_mmHg", "atrial_mean", mmHg, "mmHg", "time mean of the atrial pressure"),
+    ("{side}_peak_force_N", "peak_force", 1.0, "N", "a pump's largest cable force"),
+    ("{side}_cable_work_J", "cable_work", 1.0, "J", "a pump's net cable work over the beat"),
+)  # fmt: skip
+PUMP_NUMBERS = frozenset({"peak_force", "cable_work"})
+"""The fields of :data:`SIDE_NUMBERS` a native ventricle has not (NaN, ``None`` in records)."""
+LOOP_NUMBERS = (
+    ("pulmonary_volume_ml", "pulmonary_volume", ml, "ml", "mean pulmonary blood volume"),
+    ("systemic_volume_ml", "systemic_volume", ml, "ml", "mean systemic blood volume"),
+    ("total_volume_ml", "total_volume", ml, "ml", "blood volume of the loop"),
+)
+_VESSELS = {"left": ("aortic", "la"), "right": ("pulmonary", "ra")}
+
+
+def record_numbers(sides=("left", "right"), *, pumps=("left", "right")) -> dict:
+    """``{record key: (path in LoopMetrics, scale to the unit, unit, long name)}`` of the
+    ``sides``; a pump's numbers only for the sides in ``pumps``."""
+    out = {}
+    for side in sides:
+        artery, atrium = _VESSELS[side]
+        for key, field, scale, unit, long_name in SIDE_NUMBERS:
+            if field in PUMP_NUMBERS and side not in pumps:
+                continue
+            name = key.format(side=side, artery=artery, atrium=atrium)
+            out[name] = (f"{side}.{field}", scale, unit, f"{side} side: {long_name}")
+    for key, field, scale, unit, long_name in LOOP_NUMBERS:
+        out[key] = (field, scale, unit, long_name)
+    return out
+
+
 def loop_summary_records(result) -> list[dict]:
     """One JSON-ready record per member of a closed loop's
     :class:`~cardiosoft.results.RunResult` in user units (``summary.json``): per side SV, EDV,
     ESV, EF, CO, the net output, arterial pressures, mean atrial pressure, a pump's peak force
-    and cable work; the pulmonary and systemic volumes; the run's state and flags."""
+    and cable work (:data:`SIDE_NUMBERS`); the pulmonary and systemic volumes; the run's state
+    and flags."""
+    numbers = record_numbers().items()
     records = []
     for m in result.members:
         x = m.metrics
         record = {"label": m.label, "bpm": result.scene.bpm}
-        for side, artery, atrium in (("left", "aortic", "la"), ("right", "pulmonary", "ra")):
-            record |= {
-                f"{side}_sv_ml": x[f"{side}_stroke_volume"] / ml,
-                f"{side}_edv_ml": x[f"{side}_edv"] / ml,
-                f"{side}_esv_ml": x[f"{side}_esv"] / ml,
-                f"{side}_ef": x[f"{side}_ejection_fraction"],
-                f"{side}_co_l_min": x[f"{side}_cardiac_output"] / ml * 60 / 1000,
-                f"{side}_net_output_l_min": x[f"{side}_net_output"] / ml * 60 / 1000,
-                f"{artery}_systolic_mmHg": x[f"{side}_arterial_systolic"] / mmHg,
-                f"{artery}_diastolic_mmHg": x[f"{side}_arterial_diastolic"] / mmHg,
-                f"{artery}_mean_mmHg": x[f"{side}_arterial_mean"] / mmHg,
-                f"{atrium}_mean_mmHg": x[f"{side}_atrial_mean"] / mmHg,
-                f"{side}_peak_force_N": x[f"{side}_peak_force"],
-                f"{side}_cable_work_J": x[f"{side}_cable_work"],
-            }
+        record |= {key: x[path.replace(".", "_")] / scale for key, (path, scale, *_) in numbers}
         record |= {
-            "pulmonary_volume_ml": x["pulmonary_volume"] / ml,
-            "systemic_volume_ml": x["systemic_volume"] / ml,
-            "total_volume_ml": x["total_volume"] / ml,
             "beats": m.beats,
             "steady_residual": m.residual,
             "volume_drift": m.volume_drift,

@@ -48,6 +48,7 @@ __all__ = [
     "PULMONARY_SHARE_BAND",
     "RA_CONGESTION",
     "configure_loop",
+    "flat_metrics",
     "loop_flags",
     "pump_sides",
     "run_loop",
@@ -66,7 +67,9 @@ PULMONARY_SHARE_BAND = (0.5, 2.0)
 _ATRIA = {"left": "left atrium", "right": "right atrium"}
 
 
-def _flat(metrics, i: int) -> dict[str, float]:
+def flat_metrics(metrics, i: int) -> dict[str, float]:
+    """Member ``i`` of a batch's :class:`~cardiosoft.network.loop_batch.LoopMetrics`, flattened to
+    ``"{side}_{field}"`` and the volumes (SI; the module docstring)."""
     out = {}
     for side in SIDES:
         m = getattr(metrics, side)
@@ -130,7 +133,7 @@ def loop_member_results(
     domain = Domain() if domain is None else domain
     out = []
     for i, label in enumerate(labels):
-        metrics = _flat(solution.metrics, i)
+        metrics = flat_metrics(solution.metrics, i)
         traces = (
             {}
             if solution.traces is None

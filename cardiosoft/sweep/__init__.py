@@ -41,6 +41,13 @@ cardiosoft version and solver preset as attributes. ``DIR/map-*.png``: per after
 stroke volume, efficiency and peak force as heat maps over Omega x C, with the paper's Table I
 designs and the buckling onset (``Omega C`` at the surrogate's buckling step) marked.
 
+**A closed loop** with a soft pump (``soft-lv``, ``soft-rv``, ``tah``) is swept the same way,
+every pump at the point's design; its variables are its ``summary.json`` numbers
+(:func:`cardiosoft.network.loop_records.record_numbers`), its maps' panels a pump's stroke
+volume, the cardiac output and the pump's peak force. Each kind of scene names its variables,
+panels and flags (``sweep_variables``, ``sweep_panels``, ``sweep_flags`` of
+:func:`cardiosoft.scene_tools.tools`).
+
 **Where it lives.** :mod:`~cardiosoft.sweep.plan` (the grid, its chunks, validation),
 :mod:`~cardiosoft.sweep.chunk` (one chunk's task and solve, the variables, ``status``),
 :mod:`~cardiosoft.sweep.executor` (this process or Dask), :mod:`~cardiosoft.sweep.store`

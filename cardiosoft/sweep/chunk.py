@@ -7,7 +7,8 @@ import dataclasses
 
 import numpy as np
 
-from cardiosoft.units import ml
+from cardiosoft.results import SWEEP_VARIABLES as METRIC_VARIABLES
+from cardiosoft.results import flagged_members as flagged_points
 
 __all__ = [
     "BAND_VARIABLES",
@@ -35,35 +36,6 @@ solver finished with a NaN or infinite metric; 4 another solver failure; 5 the c
 or its worker was lost (the chunk's message is in the Dataset's ``failed_chunks`` attribute)."""
 OK, NOT_STEADY, MAX_STEPS, NONFINITE, SOLVER_FAILED, CHUNK_FAILED = range(len(STATUS))
 
-# name: (BeatMetrics field, scale to the unit, unit, long name). The five the issue asks for
-# first; every one is in the last beat of the member.
-METRIC_VARIABLES = {
-    "stroke_volume_ml": (
-        "stroke_volume",
-        ml,
-        "ml",
-        "stroke volume EDV - ESV (the bench: the peak column rise, the paper's dynamic SV)",
-    ),
-    "ejection_fraction": ("ejection_fraction", 1.0, "1", "ejection fraction SV / EDV"),
-    "peak_force_N": ("peak_force", 1.0, "N", "largest measured cable force during the pull"),
-    "mech_work_J": (
-        "mech_work",
-        1.0,
-        "J",
-        "mechanical work: the cable force integrated over the pull (the paper's M)",
-    ),
-    "efficiency": ("efficiency", 1.0, "1", "the paper's efficiency P_a SV / M"),
-    "hydraulic_work_J": ("hydraulic_work_paper", 1.0, "J", "the paper's hydraulic work P_a SV"),
-    "stroke_work_J": ("stroke_work", 1.0, "J", "area of the pressure-volume loop"),
-    "edv_ml": ("edv", ml, "ml", "end-diastolic (largest) pump volume"),
-    "esv_ml": ("esv", ml, "ml", "end-systolic (smallest) pump volume"),
-    "cardiac_output_l_min": (
-        "cardiac_output",
-        1000 * ml / 60.0,
-        "l/min",
-        "cardiac output SV / period",
-    ),
-}
 SOLVER_VARIABLES = {
     "beats": ("i4", "1", "beats integrated"),
     "steady": (
@@ -87,11 +59,14 @@ SOLVER_VARIABLES = {
         "1",
         "a number of the point is not to be taken as it is (cardiosoft.results.flags: the pump "
         "pressure outside the surrogate's fitted range, a cable that would push, an efficiency "
-        "that is not meaningful); the values are kept as computed",
+        "that is not meaningful; in a closed loop also cardiosoft.network.loop_results."
+        "loop_flags: congestion, a collapsing atrium, blood piled up on one side); the values "
+        "are kept as computed",
     ),
 }
 VARIABLES = (*METRIC_VARIABLES, *SOLVER_VARIABLES)
-"""The data variables of the Dataset, each with ``units`` and ``long_name`` attributes."""
+"""The data variables of an open-loop scene's Dataset, each with ``units`` and ``long_name``
+attributes (a closed loop's metrics are its kind's ``sweep_variables``)."""
 BAND_VARIABLES = {
     "stroke_volume_ml": "dynamic_sv_ml",
     "ejection_fraction": "ef",
@@ -124,6 +99,13 @@ class Task:
     x64: bool
     draws: int | None = None  # posterior draws per point (uncertainty), or None
 
+    @property
+    def metrics(self) -> tuple[str, ...]:
+        """The names of the sweep's metric variables (its scene's kind's)."""
+        from cardiosoft.scene_tools import tools
+
+        return tuple(tools(self.scene).sweep_variables(self.scene))
+
 
 _PUMPS: dict = {}
 
@@ -139,9 +121,10 @@ def load_pump(ref):
     return ref
 
 
-def failed_result(n: int, message: str, draws: int | None = None) -> dict:
-    """The result of ``n`` points of a chunk that failed with ``message``."""
-    out = {name: np.full(n, np.nan) for name in METRIC_VARIABLES}
+def failed_result(n: int, message: str, metrics, draws: int | None = None) -> dict:
+    """The result of ``n`` points of a chunk that failed with ``message`` (``metrics``: the
+    names of the sweep's metric variables)."""
+    out = {name: np.full(n, np.nan) for name in metrics}
     if draws is not None:
         out |= {name: np.full(n, np.nan) for name in band_names()}
         out["band_failed_draws"] = np.full(n, draws, np.int32)
@@ -158,22 +141,6 @@ def failed_result(n: int, message: str, draws: int | None = None) -> dict:
     return out
 
 
-def flagged_points(metrics, n: int, domain) -> np.ndarray:
-    """Whether :func:`cardiosoft.results.flags` flags each of the first ``n`` members of a batch
-    solve's :class:`~cardiosoft.metrics.BeatMetrics` (on a copy: nothing is changed)."""
-    from cardiosoft.results import flags
-
-    fields = {
-        f.name: np.asarray(getattr(metrics, f.name))[:n]
-        for f in dataclasses.fields(metrics)
-        if getattr(metrics, f.name) is not None
-    }
-    return np.array(
-        [bool(flags({k: float(v[i]) for k, v in fields.items()}, domain)) for i in range(n)],
-        dtype=bool,
-    )
-
-
 def solve_chunk(task: Task) -> dict:
     """Solve one chunk: numpy arrays of its valid points (``error``: "" or why it failed).
 
@@ -187,8 +154,9 @@ def solve_chunk(task: Task) -> dict:
     try:
         import diffrax
 
-        from cardiosoft.batch import solve_beats
+        from cardiosoft.scene_tools import solve_beats, tools
 
+        kind = tools(task.scene)
         n = task.valid
         members = dict(task.members)
         devices = len(jax.devices())
@@ -205,8 +173,8 @@ def solve_chunk(task: Task) -> dict:
         )
         out = jax.block_until_ready(out)
         result = {}
-        for name, (field, scale, _, _) in METRIC_VARIABLES.items():
-            result[name] = np.asarray(getattr(out.metrics, field))[:n] / scale
+        for name, (path, scale, _, _) in kind.sweep_variables(task.scene).items():
+            result[name] = np.asarray(_metric(out.metrics, path))[:n] / scale
         finite = np.all([np.isfinite(v) for v in result.values()], axis=0)
         succeeded = np.asarray(out.succeeded)[:n]
         max_steps = np.asarray(out.result == diffrax.RESULTS.max_steps_reached)[:n]
@@ -216,7 +184,7 @@ def solve_chunk(task: Task) -> dict:
             [MAX_STEPS, SOLVER_FAILED, NONFINITE, NOT_STEADY],
             OK,
         ).astype(np.int8)
-        for name in METRIC_VARIABLES:  # a failed solve leaves no number worth keeping
+        for name in kind.sweep_variables(task.scene):  # a failed solve leaves no number to keep
             result[name] = np.where(succeeded, result[name], np.nan)
         result |= {
             "beats": np.asarray(out.beats)[:n].astype(np.int32),
@@ -225,7 +193,8 @@ def solve_chunk(task: Task) -> dict:
             "volume_drift": np.asarray(out.volume_drift)[:n].astype(float),
             "num_steps": np.asarray(out.num_steps)[:n].astype(np.int32),
             "status": status,
-            "flagged": flagged_points(out.metrics, n, load_pump(task.pump).domain) & succeeded,
+            "flagged": kind.sweep_flags(task.scene, out.metrics, n, load_pump(task.pump).domain)
+            & succeeded,
             "error": np.array(""),
         }
         if task.draws is not None:
@@ -233,8 +202,15 @@ def solve_chunk(task: Task) -> dict:
         return result
     except Exception as err:  # a failed chunk must not stop the sweep
         return failed_result(
-            task.valid, f"{type(err).__name__}: {err}".splitlines()[0], task.draws
+            task.valid, f"{type(err).__name__}: {err}".splitlines()[0], task.metrics, task.draws
         )
+
+
+def _metric(metrics, path: str):
+    """The metric at a dotted ``path`` of a batch's metrics (``"left.stroke_volume"``)."""
+    for name in path.split("."):
+        metrics = getattr(metrics, name)
+    return metrics
 
 
 _POSTERIORS: dict = {}

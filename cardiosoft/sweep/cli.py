@@ -20,7 +20,7 @@ from cardiosoft._cli import (
 from cardiosoft.console import Console, fail
 from cardiosoft.scene import load_scene
 from cardiosoft.sweep.chunk import NOT_STEADY, STATUS
-from cardiosoft.sweep.maps import map_keys
+from cardiosoft.sweep.maps import map_keys, panels_of
 from cardiosoft.sweep.plan import DEFAULT_CHUNK
 from cardiosoft.sweep.runner import design_sweep
 from cardiosoft.sweep.store import PARTIAL
@@ -42,7 +42,7 @@ def parser(prog: str | None = None):
         failure="a point failed, or did not reach the periodic steady state it was run to",
         output="sweep.nc ('steady', 'status')",
     )
-    add_scene_option(p, static=False)
+    add_scene_option(p, static=False, loops=True)
     p.add_argument("--omega", required=True, metavar="START:STOP:N", help="helix parameter grid")
     p.add_argument(
         "--shortening", required=True, metavar="START:STOP:N", help="cable shortening C grid"
@@ -92,33 +92,36 @@ def parser(prog: str | None = None):
     return p
 
 
-def _best_efficiency(cut, coords) -> str:
-    """The most efficient steady point of one map, as text."""
+def _best(cut, name: str, coords) -> str:
+    """The steady point of one map with the largest ``name``, as text."""
     steady_mask = cut["steady"].values
-    eff = cut["efficiency"].values
+    values = cut[name].values
     note = ""
     if steady_mask.sum():
-        eff = np.where(steady_mask, eff, np.nan)
-    elif np.isfinite(eff).any():
+        values = np.where(steady_mask, values, np.nan)
+    elif np.isfinite(values).any():
         note = " (no point steady)"
-    if not np.isfinite(eff).any():
+    if not np.isfinite(values).any():
         return "-"
-    i, j = np.unravel_index(np.nanargmax(eff), eff.shape)
-    return f"{eff[i, j]:.3f} at ({coords['omega'][i]:g}, {coords['shortening'][j]:g}){note}"
+    i, j = np.unravel_index(np.nanargmax(values), values.shape)
+    return f"{values[i, j]:.3f} at ({coords['omega'][i]:g}, {coords['shortening'][j]:g}){note}"
 
 
 def summary(ds) -> str:
-    """Per afterload and bpm: steady points, SV range, the best-efficiency design."""
+    """Per afterload and bpm: steady points, the ranges of the maps' first and third panels
+    (stroke volume and peak force) and the best design by the second (efficiency; a closed
+    loop's cardiac output)."""
+    (sv_name, _, _), (best_name, _, _), (force_name, _, _) = panels_of(ds)
     lines = [
-        "afterload    bpm  steady      SV ml     peak F N   best efficiency at (Omega, C)",
+        f"afterload    bpm  steady      SV ml     peak F N   best {best_name} at (Omega, C)",
     ]
     coords = {d: tuple(np.asarray(ds[d]).tolist()) for d in ds.dims}
     for head, rate in map_keys(coords):
         sel = {"bpm": rate} | ({} if head is None else {"afterload_mmHg": head})
-        cut = ds[["stroke_volume_ml", "peak_force_N", "efficiency", "steady"]].sel(sel).load()
-        sv, force = cut["stroke_volume_ml"].values, cut["peak_force_N"].values
+        cut = ds[[sv_name, force_name, best_name, "steady"]].sel(sel).load()
+        sv, force = cut[sv_name].values, cut[force_name].values
         steady = int(cut["steady"].values.sum())
-        best = _best_efficiency(cut, coords)
+        best = _best(cut, best_name, coords)
         with np.errstate(all="ignore"):
             sv_range = f"{np.nanmin(sv):5.1f}-{np.nanmax(sv):5.1f}"
             f_range = f"{np.nanmin(force):5.1f}-{np.nanmax(force):5.1f}"
@@ -221,6 +224,7 @@ def report_points(console: Console, ds, fixed_beats: bool) -> None:
         console.flag(
             "",
             f"{flagged} of {total} points flagged: a pump pressure outside the surrogate's fitted "
-            "range, a cable that would push or an efficiency that is not meaningful ('flagged' "
+            "range, a cable that would push or an efficiency that is not meaningful; in a closed "
+            "loop also congestion, a collapsing atrium or blood piled up on one side ('flagged' "
             "in the Dataset)",
         )

@@ -42,7 +42,8 @@ def run_dask(client, tasks, window: int) -> Iterator[tuple[int, dict]]:
         try:
             result = future.result()
         except Exception as err:  # a lost worker fails its chunk, not the sweep
-            result = failed_result(task.valid, f"{type(err).__name__}: {err}".splitlines()[0])
+            message = f"{type(err).__name__}: {err}".splitlines()[0]
+            result = failed_result(task.valid, message, task.metrics, task.draws)
         future.release()
         yield task.index, result
         nxt = submit()

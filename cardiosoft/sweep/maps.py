@@ -1,5 +1,6 @@
 """Heat maps of a sweep: per afterload and rate, stroke volume, efficiency and peak force over
-Omega x C, with the paper's Table I designs and the buckling onset marked."""
+Omega x C (a closed loop: a pump's stroke volume, the cardiac output and the pump's peak force),
+with the paper's Table I designs and the buckling onset marked."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["cell_edges", "map_keys", "map_name", "plot_maps"]
+__all__ = ["PANELS", "cell_edges", "map_keys", "map_name", "panels_of", "plot_maps"]
 
 
 def cell_edges(values) -> np.ndarray:
@@ -37,7 +38,18 @@ PANELS = (
     ("efficiency", "efficiency P_a SV / M [-]", "magma"),
     ("peak_force_N", "peak cable force [N]", "cividis"),
 )
-"""The three panels of a map: (variable, label, colour map)."""
+"""The three panels of an open-loop scene's map: (variable, label, colour map). A closed
+loop's are its kind's (:func:`cardiosoft.network.closed_loop_tools.sweep_panels`)."""
+
+
+def panels_of(ds) -> tuple:
+    """The map panels a sweep's Dataset names (its attribute ``map_panels``; :data:`PANELS` for
+    a file written before it had one)."""
+    import json
+
+    if "map_panels" not in ds.attrs:
+        return PANELS
+    return tuple(tuple(p) for p in json.loads(ds.attrs["map_panels"]))
 
 
 def plot_maps(ds, out_dir, onset_twist: float | None = None) -> list[Path]:
@@ -55,11 +67,12 @@ def plot_maps(ds, out_dir, onset_twist: float | None = None) -> list[Path]:
 
     twist = BUCKLING_ONSET[0] if onset_twist is None else onset_twist
     written = []
+    panels = panels_of(ds)
     coords = {d: tuple(np.asarray(ds[d]).tolist()) for d in ds.dims}
     for head, rate in map_keys(coords):
         sel = {"bpm": rate} | ({} if head is None else {"afterload_mmHg": head})
-        cut = ds[[p[0] for p in PANELS] + ["steady"]].sel(sel).load()
-        fig = _map_figure(plt, cut, twist)
+        cut = ds[[p[0] for p in panels] + ["steady"]].sel(sel).load()
+        fig = _map_figure(plt, cut, panels, twist)
         where = "" if head is None else f"{head:g} mmHg, "
         steady = np.asarray(cut["steady"])
         fig.suptitle(
@@ -76,13 +89,13 @@ def plot_maps(ds, out_dir, onset_twist: float | None = None) -> list[Path]:
     return written
 
 
-def _map_figure(plt, cut, twist: float):
+def _map_figure(plt, cut, panels, twist: float):
     """The three panels of one afterload and rate (``cut``: its Dataset over Omega x C)."""
     omega, c = np.asarray(cut["omega"]), np.asarray(cut["shortening"])
     x_edges, y_edges = cell_edges(omega), cell_edges(c)
     steady = np.asarray(cut["steady"].transpose("omega", "shortening"))
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.3), constrained_layout=True)
-    for ax, (name, label, cmap) in zip(axes, PANELS, strict=True):
+    for ax, (name, label, cmap) in zip(axes, panels, strict=True):
         z = np.asarray(cut[name].transpose("omega", "shortening"), dtype=float)
         mesh = ax.pcolormesh(x_edges, y_edges, z.T, cmap=cmap, shading="flat")
         bar = fig.colorbar(mesh, ax=ax, label=label)

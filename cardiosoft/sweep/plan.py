@@ -33,7 +33,7 @@ COORDS = {
 class Plan:
     """A validated sweep: the scene, the grid, the beats, the chunks and the surrogate."""
 
-    scene: object  # cardiosoft.scene.Scene
+    scene: object  # a Scene or a LoopScene
     coords: dict  # dim -> tuple of values (user units), in DIMS order
     beats: int | None
     chunk: int
@@ -54,6 +54,14 @@ class Plan:
     @property
     def n_chunks(self) -> int:
         return -(-self.size // self.chunk)
+
+    @property
+    def metric_variables(self) -> dict:
+        """The sweep's metric variables, its scene's kind's
+        (:data:`~cardiosoft.sweep.chunk.METRIC_VARIABLES` for an open loop)."""
+        from cardiosoft.scene_tools import tools
+
+        return tools(self.scene).sweep_variables(self.scene)
 
     def members(self, index: int) -> tuple[dict, int]:
         """The member values (SI) of chunk ``index``, padded to the chunk size; valid count."""
@@ -88,10 +96,10 @@ class Plan:
 
     def attrs(self) -> dict:
         """The Dataset's attributes."""
-        from cardiosoft.batch import default_config
+        from cardiosoft.scene_tools import tools
 
         scene = self.scene
-        config = default_config(scene)
+        config = tools(scene).preset(scene)
         solver = type(config.solver).__name__
         return {
             "title": f"cardiosoft design-space sweep of scene {scene.name}",
@@ -111,6 +119,7 @@ class Plan:
             "precision": self.precision,
             "chunk": self.chunk,
             "status_meanings": " ".join(STATUS),
+            "map_panels": json.dumps(tools(scene).sweep_panels(scene)),
         } | self._uncertainty_attrs()
 
     def _uncertainty_attrs(self) -> dict:
@@ -142,6 +151,7 @@ def make_plan(
     from cardiosoft.experiment import configure
     from cardiosoft.pump import DEFAULT_ARTIFACT
     from cardiosoft.scene import RANGES
+    from cardiosoft.scene_tools import check_supported, tools
 
     scene = configure(scene, accuracy=accuracy)
     if scene.static:
@@ -155,8 +165,10 @@ def make_plan(
     }
     check_range("omega", coords["omega"], "", *RANGES["omega"])
     check_range("shortening C", coords["shortening"], "", *RANGES["shortening"])
+    # a scene without a pump to design (the native heart) says so now, not in every chunk
+    tools(scene).configure(scene, omega=coords["omega"][0], shortening=coords["shortening"][0])
     given = None if afterload is None else parse_values(afterload, "afterload")
-    heads = scene.column_heads_mmHg(given, action="sweep")
+    heads = tools(scene).column_heads(scene, given, "sweep")
     if heads is not None:
         coords["afterload_mmHg"] = heads
     coords["bpm"] = (scene.bpm,) if bpm is None else parse_values(bpm, "bpm")
@@ -176,6 +188,7 @@ def make_plan(
     if draws is not None:
         from cardiosoft.pump import load_posterior
 
+        check_supported(scene, "uncertainty", "uncertainty")
         if pump is not None:
             raise ValueError(
                 "uncertainty: the posterior belongs to the shipped surrogate; sweep it "

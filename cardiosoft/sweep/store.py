@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cardiosoft.sweep.chunk import BAND_VARIABLES, METRIC_VARIABLES, SOLVER_VARIABLES, STATUS
+from cardiosoft.sweep.chunk import BAND_VARIABLES, SOLVER_VARIABLES, STATUS
 from cardiosoft.sweep.plan import COORDS, Plan
 
 __all__ = ["OUTPUT", "PARTIAL", "PartialSweep", "flat_range_boxes", "write_netcdf"]
@@ -106,7 +106,7 @@ def write_netcdf(plan: Plan, chunks, path: Path, failed: dict) -> None:
             v = f.create_variable(d, (d,), data=np.asarray(values, dtype=float))
             v.attrs["units"], v.attrs["long_name"] = COORDS[d]
         variables = {}
-        for name, (_, _, units, long_name) in METRIC_VARIABLES.items():
+        for name, (_, _, units, long_name) in plan.metric_variables.items():
             variables[name] = f.create_variable(name, dims, dtype="f8", fillvalue=np.nan)
             variables[name].attrs.update(units=units, long_name=long_name)
         for name, (dtype, units, long_name) in SOLVER_VARIABLES.items():
@@ -120,7 +120,7 @@ def write_netcdf(plan: Plan, chunks, path: Path, failed: dict) -> None:
             variables[name] = var
         if plan.draws is not None:
             for name in BAND_VARIABLES:
-                _, _, units, long_name = METRIC_VARIABLES[name]
+                _, _, units, long_name = plan.metric_variables[name]
                 for edge, which in (("low", "lower"), ("high", "upper")):
                     var = f.create_variable(f"{name}_band_{edge}", dims, dtype="f8",
                                             fillvalue=np.nan)
