@@ -148,7 +148,9 @@ def run_designs(
         )
     for omega, shortening in designs:
         configure(scene, omega=omega, shortening=shortening)  # validates each design
-    heads = scene.afterloads if scene.afterload.has_heads else (None,)
+    kind = tools(scene)
+    has_heads = kind.column_heads(scene, None, "set") is not None
+    heads = scene.afterloads if has_heads else (None,)
     labels, omegas, shortenings, members_heads = [], [], [], []
     for omega, shortening in designs:
         for h in heads:
@@ -158,6 +160,6 @@ def run_designs(
             shortenings.append(float(shortening))
             members_heads.append(h)
     members = {"omega": np.asarray(omegas), "shortening": np.asarray(shortenings)}
-    if scene.afterload.has_heads:
+    if has_heads:
         members["afterload"] = np.asarray(members_heads)
-    return tools(scene).simulate_members(scene, labels, members, beats, steady, pump)
+    return kind.simulate_members(scene, labels, members, beats, steady, pump)

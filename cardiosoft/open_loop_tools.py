@@ -19,8 +19,8 @@ Every kind of scene answers the same questions through its own namespace
   ``design(scene)``, ``member_count(scene)``: the run's report;
 - ``unsupported(scene, what)``: why this scene cannot do ``what`` (one of :data:`ABILITIES`),
   or None (:func:`cardiosoft.scene_tools.check_supported` raises with it);
-- ``simulate_members(scene, labels, members, ...)``: for a scene that takes ``designs``, the
-  members of :func:`cardiosoft.run_designs`;
+- ``simulate_members(scene, labels, members, ...)``: the members of
+  :func:`cardiosoft.run_designs`, solved in one batch and labelled;
 - ``column_heads(scene, given, action)``: the water-column heads (mmHg) a grid runs at, or
   None; ``sweep_variables(scene)``, ``sweep_panels(scene)``, ``sweep_flags(scene, metrics, n,
   domain)``: a sweep's metric variables, its maps' panels and its flagged points

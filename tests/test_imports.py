@@ -380,10 +380,10 @@ def test_only_scene_tools_tells_the_kinds_of_scene_apart():
 
 def test_every_kind_of_scene_answers_every_question():
     """Each kind's namespace in ``scene_tools.TOOLS`` has every name the tools ask for (those
-    of ``open_loop_tools``, less what only a scene that takes ``designs`` needs)."""
+    of ``open_loop_tools``)."""
     from cardiosoft import open_loop_tools, scene_tools
 
-    asked = set(open_loop_tools.__all__) - {"ABILITIES", "simulate_members"}
+    asked = set(open_loop_tools.__all__) - {"ABILITIES"}
     for kind, namespace in scene_tools.TOOLS.items():
         missing = sorted(n for n in asked if not callable(getattr(namespace, n, None)))
         assert not missing, f"{kind.__name__}'s {namespace.__name__} lacks {missing}"

@@ -437,8 +437,8 @@ def test_grid_points_equal_simulate_at_their_designs(tmp_path, swept):
 def test_closed_loop_grid_points_equal_simulate_at_their_designs(tmp_path):
     """A closed loop swept (``soft-lv``: the design is its pump's): each point's variables are
     ``summary.json``'s numbers of the same name from ``simulate`` at that design (its own
-    solve, one member); its maps' panels are the pump's stroke volume, the cardiac output and
-    the pump's force.
+    solve, one member), and those of ``run_designs`` at the same designs; its maps' panels are
+    the pump's stroke volume, the cardiac output and the pump's force.
 
     The two solves are the same equations, but not the same steps: a batch of two rounds
     otherwise than a batch of one, and near the valves' switches that flips the step
@@ -471,6 +471,16 @@ def test_closed_loop_grid_points_equal_simulate_at_their_designs(tmp_path):
             assert float(point[name]) == pytest.approx(record[name], rel=1e-8), (omega, name)
         assert int(point["beats"]) == record["beats"] == 2
         assert bool(point["flagged"]) == bool(record["flags"])
+    # run_designs: the same designs as one batch of labelled records
+    designs = cardiosoft.run_designs(
+        "soft-lv", designs=[(o, 0.45) for o in omegas], bpm=60, beats=2, accuracy="reference"
+    )
+    records = cardiosoft.summary_records(designs)
+    assert [r["label"] for r in records] == [f"Omega {o:g}, C 0.45" for o in omegas]
+    for omega, record in zip(omegas, records, strict=True):
+        point = got.sel(omega=omega, shortening=0.45, bpm=60.0)
+        for name in numbers:
+            assert float(point[name]) == pytest.approx(record[name], rel=1e-8), (omega, name)
 
 
 def one_error_line(stderr: str) -> bool:

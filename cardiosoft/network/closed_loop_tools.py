@@ -11,22 +11,27 @@ from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.network.loop_records import loop_summary_records as summary_records
 from cardiosoft.network.loop_records import loop_table, loop_trace_columns, record_numbers
 from cardiosoft.network.loop_results import configure_loop as configure
-from cardiosoft.network.loop_results import flat_metrics, loop_flags, pump_sides, run_loop
+from cardiosoft.network.loop_results import (
+    flat_metrics,
+    loop_flags,
+    loop_member_results,
+    pump_sides,
+    run_loop,
+)
 from cardiosoft.network.loop_scene import LoopScene
-from cardiosoft.pump import DEFAULT_ARTIFACT
+from cardiosoft.pump import DEFAULT_ARTIFACT, load
+from cardiosoft.results import RunResult
 
 __all__ = [
     "addable_effects", "column_heads", "configure", "design", "heading", "member_count",
-    "plot", "preset", "run", "solve_beats", "summary_records", "sweep_flags", "sweep_panels",
-    "sweep_variables", "table", "trace_columns", "unsupported",
+    "plot", "preset", "run", "simulate_members", "solve_beats", "summary_records",
+    "sweep_flags", "sweep_panels", "sweep_variables", "table", "trace_columns", "unsupported",
 ]  # fmt: skip
 
 _UNSUPPORTED = {
     "compare_paper": "is not the paper's bench",
     "verify": "is a closed loop, which --verify does not check yet",
     "uncertainty": "is a closed loop, whose posterior ensemble is not supported yet",
-    "designs": "is a closed loop: give its pumps' designs as members of "
-    "cardiosoft.network.loop_batch.solve_loop(members={'lv.omega': ...}) or run() one design",
     "energy": "is a closed loop, which keeps no energy account yet",
     "pump_design": "is a closed loop: cardiosoft.design.loop.optimise_loop designs its pumps",
 }
@@ -53,6 +58,20 @@ def run(scene: LoopScene, *, beats=None, steady="beats", energy=False, config=No
     if energy:
         _refuse(scene, "energy", "energy")
     return run_loop(scene, beats=beats, steady=steady, config=config, pump=pump)
+
+
+def simulate_members(
+    scene: LoopScene, labels, members, beats, steady, pump=None, energy=False, config=None
+) -> RunResult:
+    """The members of :func:`cardiosoft.run_designs` (``omega`` and ``shortening`` set every
+    pump), solved in one batch and labelled."""
+    if energy:
+        _refuse(scene, "energy", "energy")
+    pump = load(scene.pump) if pump is None else pump
+    solution = solve_loop(
+        scene, **members, beats=beats, steady=steady, pump=pump, config=config
+    )  # fmt: skip
+    return RunResult(scene, loop_member_results(scene, labels, solution, pump.domain))
 
 
 def solve_beats(
