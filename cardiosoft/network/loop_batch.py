@@ -38,6 +38,7 @@ from cardiosoft.beat_solution import (
     shard,
     solution,
 )
+from cardiosoft.ensemble import ensemble_size, flat_batch, unflatten
 from cardiosoft.metrics import trapezoid
 from cardiosoft.network.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
@@ -192,7 +193,10 @@ def _solve(
     engine,
 ):
     def one(member):
-        loop = loop_circuit(structure.with_numbers(numbers | member), pump, engine)
+        # an ensemble's member carries its own draw of the pump's arrays (pump: the rest)
+        values = {k: v for k, v in member.items() if k != "pump"}
+        own = pump if "pump" not in member else eqx.combine(member["pump"], pump)
+        loop = loop_circuit(structure.with_numbers(numbers | values), own, engine)
         ts = None if save == "state" else _save_times(loop)
 
         def observe(ts, ys):
@@ -290,7 +294,10 @@ def solve_loop(
       ``time``), ``"metrics"`` or ``"state"`` (:data:`~cardiosoft.batch.SAVE_MODES`).
     - ``steady``: ``"beats"`` or ``"shooting"`` (Newton on the one-beat map, the total blood
       volume held; :func:`cardiosoft.shooting.shoot_periodic`).
-    - ``pump``: the surrogate of the pump chambers (default the shipped one).
+    - ``pump``: the surrogate of the pump chambers (default the shipped one); an *ensemble*
+      (a leading axis of S draws on some of its arrays, :func:`cardiosoft.pump.load_posterior`)
+      solves every draw at every member in the same call, and every array of the result has
+      the shape ``(S, M, ...)`` (:mod:`cardiosoft.batch`'s ensembles).
     - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default the scene's accuracy
       preset with Tsit5 in forward mode (:func:`loop_config`), and for the members that run
       out of its steps the implicit Kvaerno5 (:func:`stiff_loop_config`), solved again.
@@ -327,12 +334,17 @@ def solve_loop(
     structure, numbers = _split(scene)
     method = "beats" if beats is not None else steady
 
+    size = None if pump is None else ensemble_size(pump)
+
     def solve(members, config):
+        batch, shared = members, pump
+        if size is not None:  # every draw at every member, on one flat axis
+            batch, shared = flat_batch(members, pump, {}, size)
         metrics, traces, out = _solve(
             structure,
             numbers,
-            pump,
-            shard(members),
+            shared,
+            shard(batch),
             max_beats,
             tol,
             config,
@@ -342,15 +354,29 @@ def solve_loop(
             int(max_newton),
             engine,
         )
+        if size is not None:
+            metrics, traces, out = unflatten((metrics, traces, out), size)
         return solution(scene, members, config, metrics, traces, out, beats is not None)
 
     first = solve(members, config)
-    ran_out = np.flatnonzero(np.asarray(first.result == diffrax.RESULTS.max_steps_reached))
-    if chosen is not None or ran_out.size == 0:
+    ran_out = np.asarray(first.result == diffrax.RESULTS.max_steps_reached)
+    if chosen is not None or not ran_out.any():
         return first
+    if size is not None:  # an ensemble is solved again whole, and the stiff draws taken
+        again = solve(members, stiff_loop_config(scene))
+        return jax.tree.map(lambda a, b: _where_rows(ran_out, b, a), first, again)
+    ran_out = np.flatnonzero(ran_out)
     # members the explicit solver ran out of steps on are stiff: solve them again, implicitly
     again = solve(jax.tree.map(lambda a: a[ran_out], members), stiff_loop_config(scene))
     return jax.tree.map(lambda a, b: jnp.asarray(a).at[ran_out].set(b), first, again)
+
+
+def _where_rows(mask, a, b):
+    """``a`` where ``mask`` (leading axes), else ``b``; leaves that are not batched pass."""
+    a, b = jnp.asarray(a), jnp.asarray(b)
+    if a.ndim < mask.ndim:
+        return b
+    return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - mask.ndim)), a, b)
 
 
 def stiff_loop_config(scene: LoopScene) -> SolverConfig:
