@@ -31,7 +31,8 @@ __all__ = [
 _UNSUPPORTED = {
     "compare_paper": "is not the paper's bench",
     "verify": "is a closed loop, which --verify does not check yet",
-    "uncertainty": "is a closed loop, whose posterior ensemble is not supported yet",
+    "uncertainty": "is a closed loop, whose posterior bands are not reported yet (its pump's "
+    "draws solve: cardiosoft.network.loop_batch.solve_loop(pump=ensemble))",
     "energy": "is a closed loop, which keeps no energy account yet",
     "pump_design": "is a closed loop: cardiosoft.design.loop.optimise_loop designs its pumps",
 }
