@@ -12,7 +12,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-__all__ = ["BeatMetrics", "beat_metrics", "trapezoid"]
+__all__ = ["BeatMetrics", "beat_metrics", "field_at", "trapezoid"]
 
 
 def trapezoid(y, x):
@@ -144,3 +144,11 @@ def _energy_account(terms: dict, stored_change, stored_energy) -> dict:
         "energy_residual": jnp.abs(closure) / carried,
         "energy_efficiency": delivered / work_in,
     }
+
+
+def field_at(metrics, path: str):
+    """The field at a dotted ``path`` of a metrics module (``"stroke_volume"``, a closed loop's
+    ``"left.stroke_volume"``)."""
+    for name in path.split("."):
+        metrics = getattr(metrics, name)
+    return metrics

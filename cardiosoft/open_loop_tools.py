@@ -24,7 +24,10 @@ Every kind of scene answers the same questions through its own namespace
 - ``column_heads(scene, given, action)``: the water-column heads (mmHg) a grid runs at, or
   None; ``sweep_variables(scene)``, ``sweep_panels(scene)``, ``sweep_flags(scene, metrics, n,
   domain)``: a sweep's metric variables, its maps' panels and its flagged points
-  (:mod:`cardiosoft.sweep`).
+  (:mod:`cardiosoft.sweep`);
+- ``uncertainty(scene, posterior, *, beats, steady)``: ``--uncertainty``'s bands per member
+  (``{record key: Band}``), the first failed draw's message per member, the draws solved and
+  summary.json's words on the band (``holds``: what it holds).
 """
 
 from __future__ import annotations
@@ -50,14 +53,15 @@ __all__ = [
     "ABILITIES", "addable_effects", "column_heads", "configure", "design", "heading",
     "member_count", "plot", "preset", "run", "simulate_members", "solve_beats",
     "summary_records", "sweep_flags", "sweep_panels", "sweep_variables", "table",
-    "trace_columns", "unsupported",
+    "trace_columns", "uncertainty", "unsupported",
 ]  # fmt: skip
 ABILITIES = (
-    "compare_paper", "verify", "uncertainty", "designs", "export", "energy", "pump_design",
-    "loop_design",
+    "compare_paper", "verify", "uncertainty", "bench_bands", "designs", "export", "energy",
+    "pump_design", "loop_design",
 )  # fmt: skip
 """What a tool may ask a scene for besides a run (``unsupported``): ``--compare-paper``,
-``--verify``, ``--uncertainty``, :func:`cardiosoft.run_designs`, ``cardiosoft export``, the
+``--verify``, ``--uncertainty``, :mod:`cardiosoft.posterior`'s bands and ``--explain``,
+:func:`cardiosoft.run_designs`, ``cardiosoft export``, the
 energy account, :func:`cardiosoft.design.optimise`, :func:`cardiosoft.design.loop.optimise_loop`."""
 
 preset = default_config
@@ -264,3 +268,19 @@ def sweep_panels(scene: Scene) -> tuple:
 def sweep_flags(scene: Scene, metrics, n: int, domain) -> np.ndarray:
     """:func:`cardiosoft.results.flagged_members`."""
     return flagged_members(metrics, n, domain)
+
+
+def uncertainty(scene: Scene, posterior, *, beats=None, steady="beats"):
+    """``--uncertainty``: the posterior's draws solved in one call
+    (:func:`cardiosoft.posterior.ensemble_run`) and the predictive bands
+    (:func:`cardiosoft.posterior.predictive_bands`: draws plus the model discrepancy)."""
+    from cardiosoft.posterior import ensemble_run, predictive_bands
+
+    ens = ensemble_run(scene, posterior, beats=beats, steady=steady)
+    bands = predictive_bands(ens, posterior.card)
+    about = {
+        "holds": "posterior draws plus the model discrepancy",
+        "discrepancy": "sd^2 = s0^2 + s1^2 (1 - exp(-d^2)) per output type, "
+        "posterior card 'discrepancy'",
+    }
+    return bands, ens.messages, int(ens.ok.shape[0]), about

@@ -164,10 +164,10 @@ def ensemble_run(
     call, and the quasi-static strokes of a water-column scene likewise. ``beats``, ``steady`` and
     ``config`` as in :func:`cardiosoft.batch.solve_beats`; beat after beat, the draws get at
     least :data:`ENSEMBLE_MAX_BEATS` beats to reach their steady state."""
+    # an open-loop, dynamic scene: batch.solve_beats refuses any other by name (the tools check
+    # first: scene_tools' "uncertainty" and "bench_bands", which sit above this module)
     from cardiosoft.batch import solve_beats, solve_static
-    from cardiosoft.scene_tools import check_supported
 
-    check_supported(scene, "uncertainty", "--uncertainty")
     draws = _scene_draws(scene, posterior)
     scene = scene.replace(max_beats=max(scene.max_beats, ENSEMBLE_MAX_BEATS))
     members = dict(omega=omega, shortening=shortening, afterload=afterload)

@@ -250,6 +250,8 @@ def _configure(args, out_dir):
             check_supported(scene, what, "--" + what.replace("_", "-"))
     if args.explain and not args.uncertainty:
         raise ValueError("--explain: explains the bands of --uncertainty; give both")
+    if args.explain:
+        check_supported(scene, "bench_bands", "--explain")
     return scene
 
 
@@ -266,17 +268,21 @@ def _uncertainty(args, scene, records, console, posterior) -> dict:
     """Solve the posterior's draws, add ``<metric>_band`` (and ``<metric>_band_parameters``,
     the draws alone, and ``<metric>_median``, the predictive samples') to each record, flag
     failed draws; returns summary.json's ``uncertainty`` entry."""
-    from cardiosoft.posterior import BAND, ensemble_run, predictive_bands
+    from cardiosoft.posterior import BAND
 
     console.say(
         f"uncertainty: {len(next(iter(posterior.scene_draws.values())))} posterior draws x "
         f"{len(records)} member(s) in one batched solve ..."
     )
     start = time.perf_counter()
-    ens = ensemble_run(scene, posterior, beats=args.beats, steady=args.steady)
-    bands = predictive_bands(ens, posterior.card)
+    from cardiosoft.scene_tools import tools
+
+    kind = tools(scene)
+    bands, messages, draws, about = kind.uncertainty(
+        scene, posterior, beats=args.beats, steady=args.steady
+    )
     failed = []
-    for record, member_bands, message in zip(records, bands, ens.messages, strict=True):
+    for record, member_bands, message in zip(records, bands, messages, strict=True):
         for key, band in member_bands.items():
             record[f"{key}_band"] = _finite([band.low, band.high])
             record[f"{key}_band_parameters"] = _finite([band.parameter_low, band.parameter_high])
@@ -288,19 +294,18 @@ def _uncertainty(args, scene, records, console, posterior) -> dict:
         if n_failed:
             console.flag(
                 record["label"],
-                f"{n_failed} of {ens.ok.shape[0]} posterior draws failed, missed the steady "
+                f"{n_failed} of {draws} posterior draws failed, missed the steady "
                 f"state or emptied the pump below zero volume, and are left out of its bands "
                 f"(the first: {message})",
             )
     console.say(f"done in {time.perf_counter() - start:.1f} s")
     return {
         "band": BAND,
-        "draws": int(ens.ok.shape[0]),
+        "draws": draws,
         "failed_draws": failed,
         "posterior": posterior.card["file"],
         "posterior_sha256": posterior.card["sha256"],
-        "discrepancy": "sd^2 = s0^2 + s1^2 (1 - exp(-d^2)) per output type, "
-        "posterior card 'discrepancy'",
+        **about,
     }
 
 
@@ -367,8 +372,8 @@ def main(argv=None, prog: str | None = None) -> int:
         _print_table(result, records, args.compare_paper)
         if uncertainty is not None:
             print(
-                f"95 % predictive bands ({uncertainty['draws']} posterior draws plus the model "
-                "discrepancy; --out: summary.json has the draws' own bands too)"
+                f"95 % predictive bands ({uncertainty['draws']} draws; {uncertainty['holds']}; "
+                "--out: summary.json has the draws' own bands too)"
             )
             print(tools(result.scene).table(result.scene, records, bands=True))
     if args.explain:

@@ -447,6 +447,8 @@ def simulate(*args):
         (["--afterload", "90"], "afterload: scene heart is a closed loop"),
         (["--verify"], "--verify: scene heart is a closed loop"),
         (["--omega", "4"], "omega: scene heart has no soft pump"),
+        (["--uncertainty"], "--uncertainty: scene heart has no soft pump"),
+        (["--uncertainty", "--explain"], "--uncertainty: scene heart has no soft pump"),
     ],
 )
 def test_cli_refuses_bad_input_for_a_loop_in_one_line(tmp_path, args, message):
@@ -585,3 +587,46 @@ def test_an_ensemble_pump_solves_every_draw_at_every_member():
             )
     # the draws differ: the band is not empty (measured 46.4 and 43.9 ml at Omega 3.5)
     assert abs(sv[0, 0] - sv[1, 0]) > 1.0 * ml
+
+
+@pytest.mark.slow
+def test_uncertainty_bands_are_the_pump_draws_quantiles(tmp_path):
+    """``simulate --scene soft-lv --uncertainty``: each band is the 2.5-97.5 % quantile range
+    of the pump's posterior draws, here each draw's pump solved alone and the quantiles taken
+    with numpy (to 1e-8, the two solves' agreement at the "reference" preset: see
+    test_an_ensemble_pump_solves_every_draw_at_every_member); ``--explain`` is refused."""
+    import equinox as eqx
+
+    from cardiosoft.ensemble import ensemble_axes
+    from cardiosoft.network.loop_batch import solve_loop
+    from cardiosoft.posterior import first_draws
+    from cardiosoft.pump import load_posterior
+
+    args = ("--scene", "soft-lv", "--uncertainty", "--draws", "4", "--beats", "2")
+    args += ("--accuracy", "reference", "--no-plot", "--quiet")
+    refused = simulate(*args, "--explain", "--out", tmp_path / "explain")
+    assert refused.returncode == 2 and "--explain: scene soft-lv is a closed loop" in refused.stderr
+    done = simulate(*args, "--out", tmp_path / "out")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert "not added" in summary["uncertainty"]["holds"]
+    (record,) = summary["records"]
+    pump = first_draws(load_posterior(), 4).pump
+    scene = configure_loop(cs.load_scene("soft-lv"), accuracy="reference")
+    axes = ensemble_axes(pump)
+    sv, pressure = [], []
+    for draw in range(4):
+        alone = eqx.combine(
+            jax.tree_util.tree_map(
+                lambda a, ax, d=draw: a[d] if ax == 0 else a, pump, axes,
+                is_leaf=lambda x: x is None,
+            )
+        )  # fmt: skip
+        out = solve_loop(scene, pump=alone, beats=2, save="metrics")
+        sv.append(float(out.metrics.left.stroke_volume[0]) / ml)
+        pressure.append(float(out.metrics.left.arterial_mean[0]) / mmHg)
+    for key, values in (("left_sv_ml", sv), ("aortic_mean_mmHg", pressure)):
+        np.testing.assert_allclose(
+            record[f"{key}_band"], np.quantile(values, [0.025, 0.975]), rtol=1e-8, err_msg=key
+        )
+    assert record["left_sv_ml_band"][1] - record["left_sv_ml_band"][0] > 1.0  # not empty

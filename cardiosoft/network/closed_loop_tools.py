@@ -8,8 +8,14 @@ import numpy as np
 
 from cardiosoft.network.loop_batch import loop_config as preset
 from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_records import (
+    banded_keys,
+    loop_band_table,
+    loop_table,
+    loop_trace_columns,
+    record_numbers,
+)
 from cardiosoft.network.loop_records import loop_summary_records as summary_records
-from cardiosoft.network.loop_records import loop_table, loop_trace_columns, record_numbers
 from cardiosoft.network.loop_results import configure_loop as configure
 from cardiosoft.network.loop_results import (
     flat_metrics,
@@ -25,25 +31,28 @@ from cardiosoft.results import RunResult
 __all__ = [
     "addable_effects", "column_heads", "configure", "design", "heading", "member_count",
     "plot", "preset", "run", "simulate_members", "solve_beats", "summary_records",
-    "sweep_flags", "sweep_panels", "sweep_variables", "table", "trace_columns", "unsupported",
+    "sweep_flags", "sweep_panels", "sweep_variables", "table", "trace_columns", "uncertainty",
+    "unsupported",
 ]  # fmt: skip
 
 _UNSUPPORTED = {
     "compare_paper": "is not the paper's bench",
     "verify": "is a closed loop, which --verify does not check yet",
-    "uncertainty": "is a closed loop, whose posterior bands are not reported yet (its pump's "
-    "draws solve: cardiosoft.network.loop_batch.solve_loop(pump=ensemble))",
     "energy": "is a closed loop, which keeps no energy account yet",
+    "bench_bands": "is a closed loop: its --uncertainty bands are its pump's posterior draws "
+    "alone (simulate's), which --explain and sweep's bands do not take yet",
     "pump_design": "is a closed loop: cardiosoft.design.loop.optimise_loop designs its pumps",
 }
 
 
 def unsupported(scene: LoopScene, what: str) -> str | None:
+    if what == "uncertainty" and not scene.pumps:
+        return "has no soft pump, whose posterior draws the bands would hold"
     return _UNSUPPORTED.get(what)
 
 
 def _refuse(scene: LoopScene, what: str, option: str) -> None:
-    raise ValueError(f"{option}: scene {scene.name} {_UNSUPPORTED[what]}")
+    raise ValueError(f"{option}: scene {scene.name} {unsupported(scene, what)}")
 
 
 def addable_effects(scene: LoopScene) -> tuple[str, ...]:
@@ -113,7 +122,7 @@ def solve_beats(
 
 
 def table(scene: LoopScene, records, paper=None, *, bands: bool = False) -> str:
-    return loop_table(records)
+    return loop_band_table(records) if bands else loop_table(records)
 
 
 def trace_columns(result) -> list[tuple[str, str, float]]:
@@ -177,3 +186,45 @@ def column_heads(scene: LoopScene, given, action: str):
             f"afterload: scene {scene.name} is a closed loop, which has no column head to {action}"
         )
     return None
+
+
+UNCERTAINTY = (
+    "the pump's posterior draws alone: the model discrepancy was measured on the bench, not in "
+    "a circulation, and is not added"
+)
+"""What a closed loop's ``--uncertainty`` band holds."""
+
+
+def uncertainty(scene: LoopScene, posterior, *, beats=None, steady="beats"):
+    """``--uncertainty`` of a closed loop: the pump's posterior draws (``posterior.pump``, an
+    ensemble) solved in one call (:func:`~cardiosoft.network.loop_batch.solve_loop`), and per
+    member ``{record key: Band}`` of the pump sides' SV, EF, CO and peak force and the mean
+    pressures (:data:`~cardiosoft.network.loop_records.BANDED`): the 95 % band of the draws
+    that solved (and settled, unless ``beats``). Returns the bands, per member the first
+    failed draw's message (or ""), the draws and what the band holds (:data:`UNCERTAINTY`)."""
+    from cardiosoft.metrics import field_at
+    from cardiosoft.posterior import BAND, Band
+
+    sides = pump_sides(scene)
+    out = solve_loop(scene, pump=posterior.pump, beats=beats, steady=steady, save="metrics")
+    ok = np.asarray(out.succeeded) & (np.asarray(out.steady) | (beats is not None))
+    numbers = record_numbers(pumps=sides)
+    keys = [k for k in banded_keys(sides) if k in numbers]
+    quantiles = [0.5 - BAND / 2, 0.25, 0.5, 0.75, 0.5 + BAND / 2]
+    bands, messages = [], []
+    for i in range(ok.shape[1]):
+        good = ok[:, i]
+        member = {}
+        for key in keys:
+            path, scale = numbers[key][:2]
+            values = np.asarray(field_at(out.metrics, path))[good, i] / scale
+            if values.size == 0:
+                member[key] = Band(np.nan, np.nan, np.nan, np.nan, int((~good).sum()), 0)
+                continue
+            lo, q1, median, q3, hi = (float(q) for q in np.quantile(values, quantiles))
+            failed, used = int((~good).sum()), int(good.sum())
+            member[key] = Band(lo, hi, lo, hi, failed, used, median, (q1, q3))
+        bands.append(member)
+        bad = np.flatnonzero(~good)
+        messages.append(out.message((int(bad[0]), i)) if bad.size else "")
+    return bands, messages, int(ok.shape[0]), {"holds": UNCERTAINTY}

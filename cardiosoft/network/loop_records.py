@@ -8,8 +8,8 @@ import math
 from cardiosoft.units import ml, mm, mmHg
 
 __all__ = [
-    "LOOP_NUMBERS", "PUMP_NUMBERS", "SIDE_NUMBERS", "loop_summary_records", "loop_table",
-    "loop_trace_columns", "record_numbers",
+    "LOOP_NUMBERS", "PUMP_NUMBERS", "SIDE_NUMBERS", "banded_keys", "loop_band_table",
+    "loop_summary_records", "loop_table", "loop_trace_columns", "record_numbers",
 ]  # fmt: skip
 
 
@@ -86,6 +86,35 @@ def loop_summary_records(result) -> list[dict]:
         }
         records.append({k: _none_if_nan(v) for k, v in record.items()})
     return records
+
+
+def banded_keys(pump_sides) -> tuple[str, ...]:
+    """The record keys a closed loop's ``--uncertainty`` bands: each pump side's SV, EF, CO and
+    peak force, and the mean arterial and atrial pressures."""
+    pumps = tuple(
+        f"{side}_{name}" for side in pump_sides for name in ("sv_ml", "ef", "co_l_min",
+                                                              "peak_force_N")
+    )  # fmt: skip
+    means = ("aortic_mean_mmHg", "pulmonary_mean_mmHg", "la_mean_mmHg", "ra_mean_mmHg")
+    return pumps + means
+
+
+def loop_band_table(records: list[dict]) -> str:
+    """Each member's banded numbers (``<key>_band`` in its record; the key names the unit):
+    its value and its 95 % band."""
+    lines = [f"  {'':<22} {'value':>8}   {'95 % band':>15}"]
+    for record in records:
+        lines.append(f"{record['label']}:")
+        for key in record:
+            if not key.endswith("_band"):
+                continue
+            name = key[: -len("_band")]
+            low, high = record[key]
+            value = record.get(name)
+            shown = "-" if value is None else f"{value:.3g}"
+            band = "-" if low is None else f"{low:.3g}-{high:.3g}"
+            lines.append(f"  {name:<22} {shown:>8}   {band:>15}")
+    return "\n".join(lines)
 
 
 _COLUMNS = (  # header, unit, record key with {side}, {artery}, {atrium}; format

@@ -154,6 +154,7 @@ def solve_chunk(task: Task) -> dict:
     try:
         import diffrax
 
+        from cardiosoft.metrics import field_at
         from cardiosoft.scene_tools import solve_beats, tools
 
         kind = tools(task.scene)
@@ -174,7 +175,7 @@ def solve_chunk(task: Task) -> dict:
         out = jax.block_until_ready(out)
         result = {}
         for name, (path, scale, _, _) in kind.sweep_variables(task.scene).items():
-            result[name] = np.asarray(_metric(out.metrics, path))[:n] / scale
+            result[name] = np.asarray(field_at(out.metrics, path))[:n] / scale
         finite = np.all([np.isfinite(v) for v in result.values()], axis=0)
         succeeded = np.asarray(out.succeeded)[:n]
         max_steps = np.asarray(out.result == diffrax.RESULTS.max_steps_reached)[:n]
@@ -204,13 +205,6 @@ def solve_chunk(task: Task) -> dict:
         return failed_result(
             task.valid, f"{type(err).__name__}: {err}".splitlines()[0], task.metrics, task.draws
         )
-
-
-def _metric(metrics, path: str):
-    """The metric at a dotted ``path`` of a batch's metrics (``"left.stroke_volume"``)."""
-    for name in path.split("."):
-        metrics = getattr(metrics, name)
-    return metrics
 
 
 _POSTERIORS: dict = {}

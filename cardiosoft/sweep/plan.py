@@ -189,6 +189,7 @@ def make_plan(
         from cardiosoft.pump import load_posterior
 
         check_supported(scene, "uncertainty", "uncertainty")
+        check_supported(scene, "bench_bands", "uncertainty")  # band_result: ensemble_run
         if pump is not None:
             raise ValueError(
                 "uncertainty: the posterior belongs to the shipped surrogate; sweep it "
