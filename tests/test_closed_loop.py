@@ -549,6 +549,19 @@ def test_member_the_explicit_solver_runs_out_on_is_solved_implicitly():
     assert np.isfinite(left[0]) and left[0] > 0
 
 
+def one_draw(pump, draw: int):
+    """Draw ``draw`` of an ensemble pump, as a single pump."""
+    import equinox as eqx
+
+    from cardiosoft.ensemble import ensemble_axes
+
+    picked = jax.tree_util.tree_map(
+        lambda a, ax: a[draw] if ax == 0 else a, pump, ensemble_axes(pump),
+        is_leaf=lambda x: x is None,
+    )  # fmt: skip
+    return eqx.combine(picked)
+
+
 @pytest.mark.slow
 def test_an_ensemble_pump_solves_every_draw_at_every_member():
     """``solve_loop`` with two posterior draws of the pump at two designs: one call, results
@@ -556,9 +569,6 @@ def test_an_ensemble_pump_solves_every_draw_at_every_member():
     (a batch of four rounds otherwise than a batch of two, which flips the step controller's
     choices near the valves' switches), so equal to the integration's accuracy: at the
     "reference" preset (rtol 1e-10) 3.9e-9 apart at most (measured), held to 1e-8."""
-    import equinox as eqx
-
-    from cardiosoft.ensemble import ensemble_axes
     from cardiosoft.network.loop_batch import solve_loop
     from cardiosoft.posterior import first_draws
     from cardiosoft.pump import load_posterior
@@ -569,15 +579,8 @@ def test_an_ensemble_pump_solves_every_draw_at_every_member():
     both = solve_loop(scene, pump=pump, save="metrics", **designs)
     sv = np.asarray(both.metrics.left.stroke_volume)
     assert sv.shape == (2, 2) and np.all(np.asarray(both.succeeded))
-    axes = ensemble_axes(pump)
     for draw in range(2):
-        alone = eqx.combine(
-            jax.tree_util.tree_map(
-                lambda a, ax, d=draw: a[d] if ax == 0 else a, pump, axes,
-                is_leaf=lambda x: x is None,
-            )
-        )  # fmt: skip
-        single = solve_loop(scene, pump=alone, save="metrics", **designs)
+        single = solve_loop(scene, pump=one_draw(pump, draw), save="metrics", **designs)
         for field in ("stroke_volume", "peak_force", "arterial_mean"):
             np.testing.assert_allclose(
                 np.asarray(getattr(both.metrics.left, field))[draw],
@@ -595,9 +598,6 @@ def test_uncertainty_bands_are_the_pump_draws_quantiles(tmp_path):
     of the pump's posterior draws, here each draw's pump solved alone and the quantiles taken
     with numpy (to 1e-8, the two solves' agreement at the "reference" preset: see
     test_an_ensemble_pump_solves_every_draw_at_every_member); ``--explain`` is refused."""
-    import equinox as eqx
-
-    from cardiosoft.ensemble import ensemble_axes
     from cardiosoft.network.loop_batch import solve_loop
     from cardiosoft.posterior import first_draws
     from cardiosoft.pump import load_posterior
@@ -613,16 +613,9 @@ def test_uncertainty_bands_are_the_pump_draws_quantiles(tmp_path):
     (record,) = summary["records"]
     pump = first_draws(load_posterior(), 4).pump
     scene = configure_loop(cs.load_scene("soft-lv"), accuracy="reference")
-    axes = ensemble_axes(pump)
     sv, pressure = [], []
     for draw in range(4):
-        alone = eqx.combine(
-            jax.tree_util.tree_map(
-                lambda a, ax, d=draw: a[d] if ax == 0 else a, pump, axes,
-                is_leaf=lambda x: x is None,
-            )
-        )  # fmt: skip
-        out = solve_loop(scene, pump=alone, beats=2, save="metrics")
+        out = solve_loop(scene, pump=one_draw(pump, draw), beats=2, save="metrics")
         sv.append(float(out.metrics.left.stroke_volume[0]) / ml)
         pressure.append(float(out.metrics.left.arterial_mean[0]) / mmHg)
     for key, values in (("left_sv_ml", sv), ("aortic_mean_mmHg", pressure)):
