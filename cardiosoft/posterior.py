@@ -48,6 +48,7 @@ __all__ = [
     "BAND",
     "Band",
     "EnsembleRun",
+    "band",
     "discrepancy_sd",
     "ensemble_run",
     "first_draws",
@@ -214,7 +215,6 @@ def predictive_bands(ens: EnsembleRun, card: dict, *, seed: int = 0) -> list[dic
     rng = np.random.default_rng(seed)
     n_draws, n_members = ens.ok.shape
     out = []
-    lo_q, hi_q = 0.5 - BAND / 2, 0.5 + BAND / 2
     rates = np.broadcast_to(np.asarray(ens.bpm, float), (n_members,))
     with np.errstate(invalid="ignore"):  # a failed draw's NaN: left out of its band
         for i in range(n_members):
@@ -241,18 +241,19 @@ def predictive_bands(ens: EnsembleRun, card: dict, *, seed: int = 0) -> list[dic
             }
             if "static_sv_ml" in v:
                 sampled["static_sv_ml"] = v["static_sv_ml"] + z["static_sv"] * sd["static_sv"] / ml
-            bands = {}
-            for key, samples in sampled.items():
-                good = samples[ok]
-                plain = ens.values[key][ok, i]
-                if good.size == 0:
-                    bands[key] = Band(math.nan, math.nan, math.nan, math.nan, int((~ok).sum()), 0)
-                    continue
-                lo, q1, median, q3, hi = np.quantile(good, [lo_q, 0.25, 0.5, 0.75, hi_q])
-                plo, phi = np.quantile(plain, [lo_q, hi_q])
-                bands[key] = Band(
-                    float(lo), float(hi), float(plo), float(phi), int((~ok).sum()), int(ok.sum()),
-                    float(median), (float(q1), float(q3)),
-                )
-            out.append(bands)
+            failed = int((~ok).sum())
+            out.append(
+                {key: band(x[ok], ens.values[key][ok, i], failed) for key, x in sampled.items()}
+            )
     return out
+
+
+def band(samples, draws, failed: int) -> Band:
+    """The :data:`BAND` band of ``samples`` (the predictive ones; their median and quartiles
+    too) and of ``draws`` (the draws' own values), the ``failed`` draws left out of both."""
+    if samples.size == 0:
+        return Band(math.nan, math.nan, math.nan, math.nan, failed, 0)
+    lo_q, hi_q = 0.5 - BAND / 2, 0.5 + BAND / 2
+    lo, q1, median, q3, hi = (float(q) for q in np.quantile(samples, [lo_q, 0.25, 0.5, 0.75, hi_q]))
+    draws_lo, draws_hi = (float(q) for q in np.quantile(draws, [lo_q, hi_q]))
+    return Band(lo, hi, draws_lo, draws_hi, failed, int(draws.size), median, (q1, q3))

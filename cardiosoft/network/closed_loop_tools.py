@@ -199,31 +199,24 @@ def uncertainty(scene: LoopScene, posterior, *, beats=None, steady="beats"):
     """``--uncertainty`` of a closed loop: the pump's posterior draws (``posterior.pump``, an
     ensemble) solved in one call (:func:`~cardiosoft.network.loop_batch.solve_loop`), and per
     member ``{record key: Band}`` of the pump sides' SV, EF, CO and peak force and the mean
-    pressures (:data:`~cardiosoft.network.loop_records.BANDED`): the 95 % band of the draws
+    pressures (:func:`~cardiosoft.network.loop_records.banded_keys`): the 95 % band of the draws
     that solved (and settled, unless ``beats``). Returns the bands, per member the first
     failed draw's message (or ""), the draws and what the band holds (:data:`UNCERTAINTY`)."""
     from cardiosoft.metrics import field_at
-    from cardiosoft.posterior import BAND, Band
+    from cardiosoft.posterior import band
 
     sides = pump_sides(scene)
     out = solve_loop(scene, pump=posterior.pump, beats=beats, steady=steady, save="metrics")
     ok = np.asarray(out.succeeded) & (np.asarray(out.steady) | (beats is not None))
     numbers = record_numbers(pumps=sides)
-    keys = [k for k in banded_keys(sides) if k in numbers]
-    quantiles = [0.5 - BAND / 2, 0.25, 0.5, 0.75, 0.5 + BAND / 2]
     bands, messages = [], []
     for i in range(ok.shape[1]):
-        good = ok[:, i]
+        good, failed = ok[:, i], int((~ok[:, i]).sum())
         member = {}
-        for key in keys:
+        for key in banded_keys(sides):
             path, scale = numbers[key][:2]
             values = np.asarray(field_at(out.metrics, path))[good, i] / scale
-            if values.size == 0:
-                member[key] = Band(np.nan, np.nan, np.nan, np.nan, int((~good).sum()), 0)
-                continue
-            lo, q1, median, q3, hi = (float(q) for q in np.quantile(values, quantiles))
-            failed, used = int((~good).sum()), int(good.sum())
-            member[key] = Band(lo, hi, lo, hi, failed, used, median, (q1, q3))
+            member[key] = band(values, values, failed)  # no discrepancy: the draws alone
         bands.append(member)
         bad = np.flatnonzero(~good)
         messages.append(out.message((int(bad[0]), i)) if bad.size else "")
