@@ -335,12 +335,12 @@ def solve_loop(
     method = "beats" if beats is not None else steady
 
     size = None if pump is None else ensemble_size(pump)
+    batch, shared = members, pump
+    if size is not None:  # every draw at every member, on one flat axis
+        batch, shared = flat_batch(members, pump, {}, size)
 
-    def solve(members, config):
-        batch, shared = members, pump
-        if size is not None:  # every draw at every member, on one flat axis
-            batch, shared = flat_batch(members, pump, {}, size)
-        metrics, traces, out = _solve(
+    def solve(batch, config):
+        return _solve(
             structure,
             numbers,
             shared,
@@ -354,29 +354,17 @@ def solve_loop(
             int(max_newton),
             engine,
         )
-        if size is not None:
-            metrics, traces, out = unflatten((metrics, traces, out), size)
-        return solution(scene, members, config, metrics, traces, out, beats is not None)
 
-    first = solve(members, config)
-    ran_out = np.asarray(first.result == diffrax.RESULTS.max_steps_reached)
-    if chosen is not None or not ran_out.any():
-        return first
-    if size is not None:  # an ensemble is solved again whole, and the stiff draws taken
-        again = solve(members, stiff_loop_config(scene))
-        return jax.tree.map(lambda a, b: _where_rows(ran_out, b, a), first, again)
-    ran_out = np.flatnonzero(ran_out)
-    # members the explicit solver ran out of steps on are stiff: solve them again, implicitly
-    again = solve(jax.tree.map(lambda a: a[ran_out], members), stiff_loop_config(scene))
-    return jax.tree.map(lambda a, b: jnp.asarray(a).at[ran_out].set(b), first, again)
-
-
-def _where_rows(mask, a, b):
-    """``a`` where ``mask`` (leading axes), else ``b``; leaves that are not batched pass."""
-    a, b = jnp.asarray(a), jnp.asarray(b)
-    if a.ndim < mask.ndim:
-        return b
-    return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - mask.ndim)), a, b)
+    solved = solve(batch, config)
+    ran_out = np.flatnonzero(np.asarray(solved[2].result == diffrax.RESULTS.max_steps_reached))
+    if chosen is None and ran_out.size:
+        # the members (or draws) the explicit solver ran out of steps on are stiff: solve them
+        # again, implicitly
+        again = solve(jax.tree.map(lambda a: a[ran_out], batch), stiff_loop_config(scene))
+        solved = jax.tree.map(lambda a, b: jnp.asarray(a).at[ran_out].set(b), solved, again)
+    if size is not None:
+        solved = unflatten(solved, size)
+    return solution(scene, members, config, *solved, beats is not None)
 
 
 def stiff_loop_config(scene: LoopScene) -> SolverConfig:
