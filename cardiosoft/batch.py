@@ -96,6 +96,7 @@ from cardiosoft.circuit import (
 )
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
 from cardiosoft.metrics import beat_metrics, trapezoid
+from cardiosoft.network.bench import ENGINES, BenchNetwork
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
 from cardiosoft.shooting import orbit_beat, shoot_periodic
@@ -157,14 +158,24 @@ def ensemble_size(pump: PumpSurrogate, scene_draws: dict | None = None) -> int |
 
 
 def scene_circuit(
-    scene: Scene, pump: PumpSurrogate, afterload=None, *, energy: bool = False
-) -> PumpCircuit:
+    scene: Scene,
+    pump: PumpSurrogate,
+    afterload=None,
+    *,
+    energy: bool = False,
+    engine: str = "direct",
+) -> PumpCircuit | BenchNetwork:
     """The :class:`PumpCircuit` of one member of ``scene``, with only the scene's effects.
 
     ``afterload`` is the column head (Pa) of a water-column scene (default: its first) and is
     ignored by a Windkessel scene. ``energy``: keep the energy account
-    (:meth:`PumpCircuit.power`). Numbers may be traced (this runs inside the batch solve).
+    (:meth:`PumpCircuit.power`). ``engine``: ``"direct"``, the circuit's equations written
+    out; ``"network"``, the same equations as a network of blocks
+    (:class:`~cardiosoft.network.bench.BenchNetwork`). Numbers may be traced (this runs inside
+    the batch solve).
     """
+    if engine not in ENGINES:
+        raise ValueError(f"engine = {engine!r} is not one of {', '.join(ENGINES)}")
     stroke = scene.shortening * pump.cable_length(scene.omega)
     actuation = CablePull(
         stroke,
@@ -181,7 +192,7 @@ def scene_circuit(
         if scene.has("shell_viscoelasticity")
         else None
     )
-    return PumpCircuit(
+    circuit = PumpCircuit(
         pump,
         scene.omega,
         actuation,
@@ -192,6 +203,7 @@ def scene_circuit(
         wall_contact=WallContact() if scene.has("wall_contact") else None,
         energy=energy,
     )
+    return circuit if engine == "direct" else BenchNetwork(circuit)
 
 
 def _head(scene: Scene):
@@ -280,13 +292,15 @@ def _metrics(circuit: PumpCircuit, ts, ys):
 
 
 @eqx.filter_jit
-def _solve(structure, numbers, pump, members, max_beats: int, tol, config, save, steady, energy):
+def _solve(
+    structure, numbers, pump, members, max_beats: int, tol, config, save, steady, energy, engine
+):
     def one(member):
         values = {k: v for k, v in member.items() if k not in ("afterload", "start", "pump")}
         scene = dataclasses.replace(structure, **(numbers | values))
         # an ensemble's member carries its own draw of the pump's arrays (pump: the rest)
         own = pump if "pump" not in member else eqx.combine(member["pump"], pump)
-        circuit = scene_circuit(scene, own, member["afterload"], energy=energy)
+        circuit = scene_circuit(scene, own, member["afterload"], energy=energy, engine=engine)
         ts = None if save == "state" else _save_times(circuit.actuation)
         observe = None if save == "traces" else (lambda ts, ys: _metrics(circuit, ts, ys)[1])
         common = dict(
@@ -350,6 +364,7 @@ def solve_beats(
     pump: PumpSurrogate | None = None,
     config: SolverConfig | None = None,
     scene_draws: dict | None = None,
+    engine: str = "direct",
 ) -> BeatSolution:
     """Simulate a batch of members of ``scene`` to their periodic steady state (module docstring).
 
@@ -380,6 +395,8 @@ def solve_beats(
     - ``scene_draws``: scene numbers that differ between the ensemble's draws, ``{field: (S,)
       array}`` (SI; fields of :data:`SCENE_NUMBERS` that are not members), e.g. the bench's
       calibrated tube per draw; with a single pump, an ensemble of the scene's numbers alone.
+    - ``engine``: ``"direct"`` (default) or ``"network"``, the scene as a network of blocks
+      (:func:`scene_circuit`); the two agree to the solver's tolerance.
 
     **Returns:** a :class:`BeatSolution`. Nothing is raised for a member that fails or is not
     steady: see ``succeeded``, ``steady`` and ``message(i)``. Bad input raises ``ValueError``.
@@ -406,7 +423,17 @@ def solve_beats(
     if size is not None:
         batch, shared = flat_batch(members, pump, scene_draws or {}, size)
     metrics, traces, out = _solve(
-        structure, numbers, shared, _shard(batch), max_beats, tol, config, save, method, energy
+        structure,
+        numbers,
+        shared,
+        _shard(batch),
+        max_beats,
+        tol,
+        config,
+        save,
+        method,
+        energy,
+        engine,
     )
     if size is not None:
         metrics, traces, out = unflatten((metrics, traces, out), size)
@@ -425,6 +452,7 @@ def solve_orbit(
     energy: bool = False,
     pump: PumpSurrogate | None = None,
     config: SolverConfig | None = None,
+    engine: str = "direct",
 ) -> BeatSolution:
     """One beat of each member from ``start``, a point of its periodic orbit, differentiated as
     the orbit.
@@ -471,7 +499,7 @@ def solve_orbit(
     structure, numbers = split_scene(scene)
     batch = _shard({**members, "start": start})
     metrics, traces, out = _solve(
-        structure, numbers, pump, batch, 1, 0.0, config, save, "orbit", energy
+        structure, numbers, pump, batch, 1, 0.0, config, save, "orbit", energy, engine
     )
     return _solution(scene, members, config, metrics, traces, out, True)
 
@@ -537,4 +565,3 @@ def solve_static(
     k, friction = (jnp.broadcast_to(v, (size,)) for v in (k, friction))
     axes = ensemble_axes(pump)
     return StaticSolution(members, *jax.vmap(one, in_axes=(axes, 0, 0))(pump, k, friction))
-

@@ -38,7 +38,15 @@ from cardiosoft.roots import implicit_scalar_root
 from cardiosoft.units import ml, mmHg
 from cardiosoft.valves import Valve
 
-__all__ = ["CableFriction", "CableSlack", "PumpCircuit", "ShellViscoelasticity", "WallContact"]
+__all__ = [
+    "CableFriction",
+    "CableSlack",
+    "PumpCircuit",
+    "ShellViscoelasticity",
+    "WallContact",
+    "line_acceleration",
+    "line_outflow",
+]
 
 SLACK_NEWTON_STEPS = 6
 """Newton steps of :meth:`CableSlack.shell_pull`. From its start a taut root needs one; the
@@ -216,6 +224,33 @@ class ShellViscoelasticity(eqx.Module):
         return stiffness * self.strain(chamber, volume, relaxed) ** 2 / self.relaxation_time
 
 
+def line_outflow(afterload: AbstractAfterload, valve: Valve | None, ya, drop) -> jax.Array:
+    """The outflow (m^3/s) of a line without inertance at pressure drop ``drop`` (Pa) from the
+    pump to the afterload's node: through ``valve`` and the line's resistance in series, or
+    the root of ``R q + K q|q| = drop``. ``ya``: the afterload's state."""
+    r = afterload.line_resistance(ya)
+    if valve is not None:
+        return valve.flow(drop, 0.0 if r is None else r)
+    k = afterload.line_loss(ya)
+    if k is None:
+        return drop / r
+    # R q + K q|q| = drop: the root of the quadratic, in the form without cancellation
+    r = jnp.zeros_like(drop) if r is None else r
+    return 2.0 * drop / (r + jnp.sqrt(r**2 + 4.0 * k * jnp.abs(drop)))
+
+
+def line_acceleration(afterload: AbstractAfterload, ya, flow, drop) -> jax.Array:
+    """dq/dt (m^3/s^2) of a line with inertance L carrying ``flow`` q (m^3/s) at pressure drop
+    ``drop`` (Pa) from the pump to the afterload's node: ``L dq/dt = drop - R q - K q|q|``."""
+    r = afterload.line_resistance(ya)
+    if r is not None:
+        drop = drop - r * flow
+    k = afterload.line_loss(ya)
+    if k is not None:
+        drop = drop - k * flow * jnp.abs(flow)
+    return drop / afterload.line_inertance(ya)
+
+
 class PumpCircuit(eqx.Module):
     """The pump's vector field; see the module docstring.
 
@@ -296,17 +331,6 @@ class PumpCircuit(eqx.Module):
             y["energy"] = {k: jnp.zeros_like(v) for k, v in terms.items()}
         return y
 
-    def _algebraic_outflow(self, ya, dp):
-        r = self.afterload.line_resistance(ya)
-        if self.outlet_valve is not None:
-            return self.outlet_valve.flow(dp, 0.0 if r is None else r)
-        k = self.afterload.line_loss(ya)
-        if k is None:
-            return dp / r
-        # R q + K q|q| = dp: the root of the quadratic, in the form without cancellation
-        r = jnp.zeros_like(dp) if r is None else r
-        return 2.0 * dp / (r + jnp.sqrt(r**2 + 4.0 * k * jnp.abs(dp)))
-
     def _shell_force(self, y, pull):
         """The shell's force dU/dx (N) at pull ``pull`` (m) and the volume of state ``y``."""
 
@@ -333,11 +357,14 @@ class PumpCircuit(eqx.Module):
         )
         return {"pull": x, "shell_pull": shell_pull, "shell_force": tension}
 
-    def _hydraulics(self, t, y) -> dict:
-        """Pull, chamber law, pressures and flows at time t (SI): all the vector field needs."""
+    def pump_pressure(self, t, y) -> dict:
+        """The pump's side at time t (SI): the disk's pull (and, with slack cables, the shell's
+        own and the tension), the chamber law at the shell's pull (``chamber``) and the
+        cavity's pressure with the shell's effects (``pump_pressure``, Pa). Reads only
+        ``y["volume"]`` and ``y["relaxation"]``: the law of the network's pump block
+        (:class:`cardiosoft.network.bench.ShellPump`)."""
         out = self._shell_pull(t, y)
         volume = y["volume"]
-        ya = y["afterload"]
         chamber = self.pump.chamber(out.get("shell_pull", out["pull"]), self.omega)
         p_pump = chamber.pressure(volume)
         if self.wall_contact is not None:
@@ -346,14 +373,19 @@ class PumpCircuit(eqx.Module):
             p_pump = p_pump + jax.grad(self.viscoelasticity.energy, argnums=1)(
                 chamber, volume, y["relaxation"]
             )
+        return out | {"chamber": chamber, "pump_pressure": p_pump}
+
+    def _hydraulics(self, t, y) -> dict:
+        """Pull, chamber law, pressures and flows at time t (SI): all the vector field needs."""
+        out = self.pump_pressure(t, y)
+        ya = y["afterload"]
+        p_pump = out["pump_pressure"]
         p_node = self.afterload.node_pressure(ya)
-        q_out = y["flow"] if self.has_flow_state else self._algebraic_outflow(ya, p_pump - p_node)
-        out |= {
-            "chamber": chamber,
-            "pump_pressure": p_pump,
-            "node_pressure": p_node,
-            "outflow": q_out,
-        }
+        if self.has_flow_state:
+            q_out = y["flow"]
+        else:
+            q_out = line_outflow(self.afterload, self.outlet_valve, ya, p_pump - p_node)
+        out |= {"node_pressure": p_node, "outflow": q_out}
         if self.preload is not None:
             p_pre = self.preload.pressure(y["preload"])
             out["preload_pressure"] = p_pre
@@ -445,15 +477,8 @@ class PumpCircuit(eqx.Module):
         if self.viscoelasticity is not None:
             dy["relaxation"] = self.viscoelasticity.rate(s["chamber"], y["volume"], y["relaxation"])
         if self.has_flow_state:
-            ya, q = y["afterload"], y["flow"]
             drop = s["pump_pressure"] - s["node_pressure"]
-            r = self.afterload.line_resistance(ya)
-            if r is not None:
-                drop = drop - r * q
-            k = self.afterload.line_loss(ya)
-            if k is not None:
-                drop = drop - k * q * jnp.abs(q)
-            dy["flow"] = drop / self.afterload.line_inertance(ya)
+            dy["flow"] = line_acceleration(self.afterload, y["afterload"], y["flow"], drop)
         if self.energy:
             dy["energy"] = self.power(t, y, s)
         return dy

@@ -33,7 +33,7 @@ chambers (:class:`~cardiosoft.network.loop_blocks.LawChamber`), the vessels (svZ
 (:class:`~cardiosoft.network.loop_blocks.LawValve`), joined at twelve nodes. The nodes are solved
 in the order :func:`~cardiosoft.network.ordering.order_nodes` finds once for this wiring
 (:func:`loop_order`): each is one division, so a beat costs what the written-out field's does;
-its program is larger, and compiles slower (``benchmarks/loop_engine.py``).
+its program is larger, and compiles slower (``benchmarks/engines.py``).
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ class ClosedLoop(eqx.Module):
     """``"direct"``: the equations above written out; ``"network"``: the same equations as a
     :class:`~cardiosoft.network.network.Network` of blocks (module docstring). The two agree to
     round-off (``tests/test_network_loop.py``); the network compiles slower (measured in
-    ``benchmarks/loop_engine.py``), so it is not the default yet."""
+    ``benchmarks/engines.py``), so it is not the default yet."""
 
     def __check_init__(self):
         if self.engine not in ENGINES:

@@ -98,6 +98,7 @@ def solve_beats(
     pump=None,
     config=None,
     scene_draws=None,
+    engine="direct",
 ):
     """:func:`cardiosoft.batch.solve_beats` of a closed loop:
     :func:`~cardiosoft.network.loop_batch.solve_loop`, ``omega`` and ``shortening`` setting
@@ -118,6 +119,7 @@ def solve_beats(
         steady=steady,
         pump=pump,
         config=config,
+        engine=engine,
     )
 
 
