@@ -75,6 +75,10 @@ class Block(eqx.Module):
     """Whether its residuals are nonlinear in the nodes' unknowns (then Newton solves them)."""
     kind = ""
     """svZeroDSolver's type name of the block, for messages and the writer."""
+    vessel = False
+    """Whether blood flows into it as into a vessel (a vessel, an outlet's resistance, RCR or
+    coronary bed): its record is its inlet's pressure and flow
+    (:mod:`cardiosoft.network.block_metrics`)."""
 
     def rates(self, t, x, P, Q, steady=False):
         return _none(P)
@@ -92,6 +96,13 @@ class Block(eqx.Module):
     def state_kinds(self) -> tuple[str, ...]:
         """``"pressure"``, ``"flow"`` or ``"volume"`` per state: the state's scale."""
         return ()
+
+    def chamber_volumes(self) -> dict[str, str]:
+        """The chambers it holds, by record name, each with the name of its volume variable:
+        a chamber's ``Vc:NAME`` (its record is its beat's volumes,
+        :mod:`cardiosoft.network.block_metrics`)."""
+        volume = f"Vc:{self.name}"
+        return {self.name: volume} if volume in self.internal_names() else {}
 
 
 def _stenosis_drop(R, S, q):
@@ -112,6 +123,7 @@ class BloodVessel(Block):
     States: the capacitor's pressure when C > 0, the outlet flow when L > 0.
     """
 
+    vessel = True
     R: jnp.ndarray
     C: jnp.ndarray
     L: jnp.ndarray
@@ -188,6 +200,7 @@ class Resistance(Block):
 
     R: TimeTable
     Pd: TimeTable
+    vessel = True
     kind = "RESISTANCE"
 
     def residuals(self, t, x, P, Q, steady=False):
@@ -206,6 +219,7 @@ class RCR(Block):
     C: TimeTable
     Rd: TimeTable
     Pd: TimeTable
+    vessel = True
     kind = "RCR"
     n_states = 1
 
@@ -236,6 +250,7 @@ class ClosedLoopRCR(Block):
     Rp: jnp.ndarray
     C: jnp.ndarray
     Rd: jnp.ndarray
+    vessel = True
     kind = "ClosedLoopRCR"
     n_states = 1
 
@@ -303,6 +318,7 @@ class BloodVesselRC(Block):
 
     Rpd: jnp.ndarray
     Cp: jnp.ndarray
+    vessel = True
     kind = "BloodVesselRC"
     n_states = 1
 

@@ -1,7 +1,8 @@
 """``cardiosoft simulate --scene model.json``: an svZeroDSolver model, run as svZeroDSolver runs
-it. Prints each node's mean pressure and flow over the reported beat in the model's own units
-and, with ``--out DIR``, writes ``traces.csv`` (``time`` and one column per svZeroDSolver
-variable, under svZeroDSolver's names) and ``summary.json``.
+it. Prints each node's mean pressure and flow over the reported beat in the model's own units,
+then each chamber's and vessel's record (:mod:`cardiosoft.network.block_metrics`; also
+``summary.json``'s ``blocks``) and, with ``--out DIR``, writes ``traces.csv`` (``time`` and
+one column per svZeroDSolver variable, under svZeroDSolver's names) and ``summary.json``.
 
 ``--pump-chamber NAME`` puts the soft pump in place of the model's chamber NAME
 (:mod:`cardiosoft.network.pump_in_model`; ``--units`` the model's units, ``--omega``,
@@ -22,7 +23,7 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
+from cardiosoft.network.block_metrics import block_metrics, block_table, time_mean
 
 OUTPUT_FILES = ("summary.json", "traces.csv")
 
@@ -114,17 +115,21 @@ def simulate_model(args, console) -> int:
             f"change {traces.residual:.3g} times the steady tolerance)",
         )
     pump = None if placement is None else pump_metrics(traces, placement, net.nodes)
+    blocks = block_metrics(net, traces)
     for flag in [] if pump is None else pump_flags(pump):
         console.flag(model.name, flag)
     if not args.quiet:
         print(_table(model, traces))
+        if blocks:
+            print(block_table(blocks))
         if pump is not None:
             print(
                 f"soft pump in place of {placement.chamber} (Omega {placement.omega:g}, "
                 f"C {placement.shortening:g}), last beat: EDV {pump['edv_ml']:.1f} ml, "
                 f"ESV {pump['esv_ml']:.1f} ml, SV {pump['stroke_volume_ml']:.1f} ml, "
                 f"EF {pump['ejection_fraction']:.2f}, peak cable force "
-                f"{pump['peak_force_N']:.1f} N"
+                f"{pump['peak_force_N']:.1f} N, cable work {pump['cable_work_J']:.3f} J, "
+                f"efficiency {pump['efficiency']:.2f}"
             )
     if out_dir is not None:
         summary = {
@@ -141,6 +146,7 @@ def simulate_model(args, console) -> int:
                 "surrogate": placement.surrogate,
                 **pump,
             },
+            "blocks": blocks,
             "period": net.period,
             "beats": sim.cycles if traces.beats is None else traces.beats,
             "steady": traces.steady,
@@ -174,10 +180,10 @@ def _placement(args):
 
 
 def _table(model, traces) -> str:
-    """Each node's mean pressure and flow over the reported time (the model's units)."""
+    """Each node's time mean pressure and flow over the reported time (the model's units)."""
     rows = [f"{'node':40s} {'mean pressure':>15s} {'mean flow':>15s}"]
     for up, down in model.network.nodes:
-        p = np.mean(traces.values[f"pressure:{up}:{down}"])
-        q = np.mean(traces.values[f"flow:{up}:{down}"])
+        p = time_mean(traces.values[f"pressure:{up}:{down}"], traces.time)
+        q = time_mean(traces.values[f"flow:{up}:{down}"], traces.time)
         rows.append(f"{up + ':' + down:40s} {p:15.6g} {q:15.6g}")
     return "\n".join(rows)

@@ -118,6 +118,7 @@ class OpenLoopCoronary(Block):
     Pim: TimeTable
     Pv: jnp.ndarray
     Ram: ConstantResistance | CyclicResistance
+    vessel = True
     n_states = 3
 
     @property
@@ -251,6 +252,9 @@ class HeartAndCoronaries(Block):
 
     def state_kinds(self):
         return (*self.heart.state_kinds(), *(("pressure", "volume") * len(self.coronaries)))
+
+    def chamber_volumes(self):
+        return self.heart.chamber_volumes()
 
     def internal_names(self):
         return (*self.heart.internal_names(), *(f"volume_im:{c.name}" for c in self.coronaries))

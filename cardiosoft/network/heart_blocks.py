@@ -103,6 +103,9 @@ class ClosedLoopHeart(Block):
         names = ("V_RA", "Q_RA", "P_RV", "V_RV", "Q_RV", "P_pul", "P_LA", "V_LA", "Q_LA")
         return tuple(f"{n}:{self.name}" for n in (*names, "P_LV", "V_LV", "Q_LV"))
 
+    def chamber_volumes(self):
+        return {f"{self.name}:{c}": f"V_{c}:{self.name}" for c in ("RA", "RV", "LA", "LV")}
+
     def _chambers(self, t, x, P):
         """Every pressure and each valve's open flag (1.0 or 0.0) at ``(t, x)``."""
         p = self.p

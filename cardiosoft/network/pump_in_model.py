@@ -25,6 +25,7 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
+from cardiosoft.network.block_metrics import chamber_record, closed_integral
 from cardiosoft.network.blocks import Block
 from cardiosoft.network.loop_components import PumpChamber
 from cardiosoft.pump import Domain, load
@@ -143,25 +144,33 @@ def soft_pump(placement: PumpPlacement, ports, period: float, start_volume: floa
 
 
 def pump_metrics(traces, placement: PumpPlacement, nodes) -> dict:
-    """The pump's beat from ``traces`` (the reported samples): its end-diastolic and
-    end-systolic volumes and stroke volume (ml), ejection fraction, peak cable force (N), and
-    its lowest and highest pressure (mmHg; ``nodes``: the network's, to find its inlet)."""
+    """The pump's beat from ``traces`` (the reported samples, one whole beat): its end-diastolic
+    and end-systolic volumes and stroke volume (ml), ejection fraction, peak cable force (N),
+    its lowest and highest pressure (mmHg; ``nodes``: the network's, to find its inlet), the
+    cables' work over the beat (the closed integral of F dx, J), the stroke work (the
+    pressure-volume loop's area, -(closed integral of p dV), J) and their ratio, the pump's
+    efficiency (hydraulic work out over the cables' work in)."""
     name = placement.chamber
     pressure_unit, volume_unit = UNIT_SYSTEMS[placement.units][:2]
     volume = np.asarray(traces.values[f"Vc:{name}"]) * volume_unit
     force = np.asarray(traces.values[f"cable_force:{name}"])
     inlet = next(f"{up}:{down}" for up, down in nodes if down == name)
-    pressure = np.asarray(traces.values[f"pressure:{inlet}"]) * pressure_unit / mmHg
-    edv, esv = float(volume.max()), float(volume.min())
+    pressure = np.asarray(traces.values[f"pressure:{inlet}"]) * pressure_unit
+    beat = chamber_record(volume / ml)
+    cable_work = closed_integral(force, traces.values[f"pull:{name}"])
+    stroke_work = -closed_integral(pressure, volume)
     return {
-        "edv_ml": edv / ml,
-        "esv_ml": esv / ml,
-        "stroke_volume_ml": (edv - esv) / ml,
-        "ejection_fraction": (edv - esv) / edv,
+        "edv_ml": beat["edv"],
+        "esv_ml": beat["esv"],
+        "stroke_volume_ml": beat["stroke_volume"],
+        "ejection_fraction": beat["ejection_fraction"],
         "peak_force_N": float(force.max()),
         "min_force_N": float(force.min()),
-        "min_pressure_mmHg": float(pressure.min()),
-        "max_pressure_mmHg": float(pressure.max()),
+        "min_pressure_mmHg": float(pressure.min() / mmHg),
+        "max_pressure_mmHg": float(pressure.max() / mmHg),
+        "cable_work_J": cable_work,
+        "stroke_work_J": stroke_work,
+        "efficiency": stroke_work / cable_work,
     }
 
 

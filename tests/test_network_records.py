@@ -1,0 +1,127 @@
+"""Each block's record of an svZeroDSolver model (:mod:`cardiosoft.network.block_metrics`): a
+vessel's pressures and flow against a closed form, a chamber's and the pump's beat against the
+closed loop's own metrics of the same scene (a second implementation)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import diffrax
+import numpy as np
+import pytest
+
+import cardiosoft as cs
+from cardiosoft.network import read, simulate
+from cardiosoft.network.block_metrics import block_metrics
+from cardiosoft.network.export import to_svzerod
+from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.pump_in_model import UNIT_SYSTEMS, PumpPlacement, pump_metrics
+from cardiosoft.solve import preset
+
+CASE = Path(__file__).parent / "data" / "svzerod" / "pulsatileFlow_R_RCR.json"
+
+
+def test_a_vessels_record_holds_the_rcr_closed_form_at_the_periodic_steady_state(tmp_path):
+    """``simulate --scene pulsatileFlow_R_RCR.json --steady``: at the periodic steady state
+    the RCR's capacitor pressure has the mean Rd <Q> (``C dPc/dt = Q - Pc / Rd`` over a beat),
+    so the RCR's inlet has the mean (Rp + Rd) <Q> and the vessel's R <Q> more (Pd = 0); each
+    mean flow is <Q>, the inflow table's mean (piecewise linear, its knots on the output
+    times: exact). Bound: the trapezoid rule's error on the capacitor's pressure, h^2 / 12
+    max |P''| over the beat (estimated from the samples' second differences), plus the
+    integration's 1e-6 of the largest pressure."""
+    from cardiosoft.simulate import main
+
+    out = tmp_path / "run"
+    assert main(["--scene", str(CASE), "--steady", "--out", str(out), "--quiet"]) == 0
+    blocks = json.loads((out / "summary.json").read_text())["blocks"]
+    config = json.loads(CASE.read_text())
+    table = config["boundary_conditions"][0]["bc_values"]
+    rcr = config["boundary_conditions"][1]["bc_values"]
+    R = config["vessels"][0]["zero_d_element_values"]["R_poiseuille"]
+    t, q = np.asarray(table["t"]), np.asarray(table["Q"])
+    mean_q = np.sum(0.5 * (q[1:] + q[:-1]) * np.diff(t)) / (t[-1] - t[0])
+
+    header = (out / "traces.csv").read_text().splitlines()[0].split(",")
+    columns = np.loadtxt(out / "traces.csv", delimiter=",", skiprows=1).T
+    traces = dict(zip(header, columns, strict=True))
+    p_out = traces["pressure:branch0_seg0:OUT"]
+    capacitor = p_out - rcr["Rp"] * np.interp(traces["time"], t, q)
+    bound = np.max(np.abs(np.diff(capacitor, 2))) / 12 + 1e-6 * np.max(np.abs(p_out))
+
+    expected_rcr = (rcr["Rp"] + rcr["Rd"]) * mean_q + rcr["Pd"]
+    assert blocks["OUT"]["pressure_mean"] == pytest.approx(expected_rcr, abs=bound)
+    vessel = blocks["branch0_seg0"]
+    assert vessel["pressure_mean"] == pytest.approx(expected_rcr + R * mean_q, abs=bound)
+    for record in (vessel, blocks["OUT"]):
+        assert record["flow_mean"] == pytest.approx(mean_q, rel=1e-9)
+        assert record["pressure_diastolic"] < record["pressure_mean"] < record["pressure_systolic"]
+
+
+def _exported(name, units="cgs", beats=3):
+    """The scene after ``beats`` beats from its start, solved as ``cardiosoft export`` writes it
+    (read back, the network's run) and by ``solve_loop``, both at the reference preset."""
+    scene = cs.load_scene(name)
+    model = read(json.loads(json.dumps(to_svzerod(scene, units, beats))))
+    traces = simulate(model, "reference")
+    config = dataclasses.replace(preset("reference"), adjoint=diffrax.ForwardMode())
+    metrics = solve_loop(scene, beats=beats, save="metrics", config=config).metrics
+    return scene, model, traces, metrics
+
+
+def _agree(ours, theirs, scale):
+    """Two solves of three beats at the reference preset's rtol 1e-10 on the same output
+    times: 1e-6 of the value's scale, as the exported scene's traces agree
+    (``tests/test_network_loop.py``)."""
+    assert abs(ours - float(np.ravel(theirs)[0])) <= 1e-6 * scale
+
+
+def test_a_chambers_and_a_vessels_record_equal_the_closed_loops_metrics():
+    """``heart`` written as an svZeroDSolver model and read back: the left ventricle's EDV,
+    ESV, SV and EF and the systemic arteries' mean, systolic and diastolic pressure equal the
+    closed loop's own metrics (``SideMetrics``, computed in JAX from its samples)."""
+    _, model, traces, metrics = _exported("heart")
+    blocks = block_metrics(model.network, traces)
+    p, v = UNIT_SYSTEMS["cgs"][:2]
+    left = metrics.left
+    lv = blocks["lv"]
+    for key in ("edv", "esv", "stroke_volume"):
+        _agree(lv[key] * v, getattr(left, key), float(np.ravel(left.edv)[0]))
+    _agree(lv["ejection_fraction"], left.ejection_fraction, 1.0)
+    aorta = blocks["ar_sys"]
+    scale = float(np.ravel(left.arterial_systolic)[0])
+    _agree(aorta["pressure_mean"] * p, left.arterial_mean, scale)
+    _agree(aorta["pressure_systolic"] * p, left.arterial_systolic, scale)
+    _agree(aorta["pressure_diastolic"] * p, left.arterial_diastolic, scale)
+    assert set(blocks) == {"la", "lv", "ra", "rv", "ar_sys", "ven_sys", "ar_pul", "ven_pul"}
+
+
+@pytest.mark.slow
+def test_the_pumps_work_and_efficiency_equal_the_closed_loops():
+    """``soft-lv`` written and read back: the pump's cable work (closed integral of F dx) and
+    stroke work (-(closed integral of p dV)) equal the closed loop's ``cable_work`` and
+    ``stroke_work``; the efficiency is their ratio."""
+    scene, model, traces, metrics = _exported("soft-lv", units="mmHg")
+    placement = PumpPlacement("lv", "mmHg", scene.lv.omega, scene.lv.shortening)
+    pump = pump_metrics(traces, placement, model.network.nodes)
+    left = metrics.left
+    scale = abs(float(np.ravel(left.cable_work)[0]))
+    _agree(pump["cable_work_J"], left.cable_work, scale)
+    _agree(pump["stroke_work_J"], left.stroke_work, scale)
+    _agree(pump["stroke_volume_ml"] * 1e-6, left.stroke_volume, float(np.ravel(left.edv)[0]))
+    assert pump["efficiency"] == pytest.approx(pump["stroke_work_J"] / pump["cable_work_J"])
+    assert 0.0 < pump["efficiency"] < 1.0
+
+
+def test_the_combined_heart_block_has_a_record_per_chamber():
+    """svZeroDSolver's ``ClosedLoopHeartAndPulmonary`` holds four chambers: each has its own
+    record, read from its own volume variable (``V_LV:NAME`` ...), the beat's extremes."""
+    case = CASE.parent / "closedLoopHeart_singleVessel.json"
+    model = read(case)
+    traces = simulate(model)
+    blocks = block_metrics(model.network, traces)
+    for chamber in ("RA", "RV", "LA", "LV"):
+        volume = traces.values[f"V_{chamber}:CLH"]
+        record = blocks[f"CLH:{chamber}"]
+        assert (record["edv"], record["esv"]) == (np.max(volume), np.min(volume))
