@@ -17,8 +17,10 @@ from cardiosoft.network import read, simulate
 from cardiosoft.network.block_metrics import block_metrics
 from cardiosoft.network.export import to_svzerod
 from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_records import L_MIN, loop_block_records
 from cardiosoft.network.pump_in_model import UNIT_SYSTEMS, PumpPlacement, pump_metrics
 from cardiosoft.solve import preset
+from cardiosoft.units import ml, mmHg
 
 CASE = Path(__file__).parent / "data" / "svzerod" / "pulsatileFlow_R_RCR.json"
 
@@ -66,8 +68,22 @@ def _exported(name, units="cgs", beats=3):
     model = read(json.loads(json.dumps(to_svzerod(scene, units, beats))))
     traces = simulate(model, "reference")
     config = dataclasses.replace(preset("reference"), adjoint=diffrax.ForwardMode())
-    metrics = solve_loop(scene, beats=beats, save="metrics", config=config).metrics
-    return scene, model, traces, metrics
+    solution = solve_loop(scene, beats=beats, save="traces", config=config)
+    own = {k: np.asarray(v)[0] for k, v in solution.traces.items()}
+    return scene, model, traces, solution.metrics, own
+
+
+P_CGS, V_CGS = UNIT_SYSTEMS["cgs"][:2]
+RECORD_KEYS = {  # the loop's record key: the model's key, the scale to the loop's units, size
+    "edv_ml": ("edv", V_CGS / ml, "edv"),
+    "esv_ml": ("esv", V_CGS / ml, "edv"),
+    "stroke_volume_ml": ("stroke_volume", V_CGS / ml, "edv"),
+    "ejection_fraction": ("ejection_fraction", 1.0, "one"),
+    "pressure_mean_mmHg": ("pressure_mean", P_CGS / mmHg, "systolic"),
+    "pressure_systolic_mmHg": ("pressure_systolic", P_CGS / mmHg, "systolic"),
+    "pressure_diastolic_mmHg": ("pressure_diastolic", P_CGS / mmHg, "systolic"),
+    "flow_mean_l_min": ("flow_mean", V_CGS / L_MIN, "flow"),
+}
 
 
 def _agree(ours, theirs, scale):
@@ -80,8 +96,10 @@ def _agree(ours, theirs, scale):
 def test_a_chambers_and_a_vessels_record_equal_the_closed_loops_metrics():
     """``heart`` written as an svZeroDSolver model and read back: the left ventricle's EDV,
     ESV, SV and EF and the systemic arteries' mean, systolic and diastolic pressure equal the
-    closed loop's own metrics (``SideMetrics``, computed in JAX from its samples)."""
-    _, model, traces, metrics = _exported("heart")
+    closed loop's own metrics (``SideMetrics``, computed in JAX from its samples), and every
+    chamber's and vessel's record equals the closed loop's own (``loop_block_records``,
+    ``summary.json``'s ``blocks``) to the two solves' 1e-6."""
+    _, model, traces, metrics, own = _exported("heart")
     blocks = block_metrics(model.network, traces)
     p, v = UNIT_SYSTEMS["cgs"][:2]
     left = metrics.left
@@ -95,14 +113,24 @@ def test_a_chambers_and_a_vessels_record_equal_the_closed_loops_metrics():
     _agree(aorta["pressure_systolic"] * p, left.arterial_systolic, scale)
     _agree(aorta["pressure_diastolic"] * p, left.arterial_diastolic, scale)
     assert set(blocks) == {"la", "lv", "ra", "rv", "ar_sys", "ven_sys", "ar_pul", "ven_pul"}
+    # the closed loop's own records (summary.json's blocks) of the same beat, in user units
+    records = loop_block_records(own)
+    assert set(records) == set(blocks)
+    largest_flow = max(np.max(np.abs(own[k])) for k in own if k.endswith("_flow")) / L_MIN
+    for name, record in records.items():
+        for key, value in record.items():
+            theirs, scale, size = RECORD_KEYS[key]
+            size = {"edv": record.get("edv_ml"), "systolic": record.get(
+                "pressure_systolic_mmHg"), "flow": largest_flow, "one": 1.0}[size]
+            assert abs(blocks[name][theirs] * scale - value) <= 1e-6 * size, (name, key)
 
 
 @pytest.mark.slow
 def test_the_pumps_work_and_efficiency_equal_the_closed_loops():
     """``soft-lv`` written and read back: the pump's cable work (closed integral of F dx) and
     stroke work (-(closed integral of p dV)) equal the closed loop's ``cable_work`` and
-    ``stroke_work``; the efficiency is their ratio."""
-    scene, model, traces, metrics = _exported("soft-lv", units="mmHg")
+    ``stroke_work``, and their ratio its ``efficiency``."""
+    scene, model, traces, metrics, _ = _exported("soft-lv", units="mmHg")
     placement = PumpPlacement("lv", "mmHg", scene.lv.omega, scene.lv.shortening)
     pump = pump_metrics(traces, placement, model.network.nodes)
     left = metrics.left
@@ -110,6 +138,7 @@ def test_the_pumps_work_and_efficiency_equal_the_closed_loops():
     _agree(pump["cable_work_J"], left.cable_work, scale)
     _agree(pump["stroke_work_J"], left.stroke_work, scale)
     _agree(pump["stroke_volume_ml"] * 1e-6, left.stroke_volume, float(np.ravel(left.edv)[0]))
+    _agree(pump["efficiency"], left.efficiency, 1.0)
     assert pump["efficiency"] == pytest.approx(pump["stroke_work_J"] / pump["cable_work_J"])
     assert 0.0 < pump["efficiency"] < 1.0
 

@@ -207,6 +207,7 @@ def good_loop_metrics(pump_sides=("left",), **changes) -> dict[str, float]:
         peak_force=60.0,
         min_cable_force=1.0,
         cable_work=1.5,
+        efficiency=1.0 / 1.5,
     )
     assert set(side) == {f.name for f in dataclasses.fields(SideMetrics)}
     m = {}

@@ -109,6 +109,9 @@ class SideMetrics(eqx.Module):
     cable_work: jax.Array
     """A pump's net work of the cables over the beat, the closed integral of F dx (J); NaN
     native."""
+    efficiency: jax.Array
+    """A pump's stroke work over its cables' work: the hydraulic work out per mechanical work
+    in; NaN native."""
 
 
 class LoopMetrics(eqx.Module):
@@ -136,6 +139,7 @@ def _side(loop: ClosedLoop, ts, s, side: str) -> SideMetrics:
         pump = (force[jnp.argmax(force)], jnp.min(force), trapezoid(force, pull))
     else:
         pump = (nan, nan, nan)
+    stroke_work = -trapezoid(pressure, volume)
     return SideMetrics(
         edv=edv,
         esv=esv,
@@ -150,10 +154,11 @@ def _side(loop: ClosedLoop, ts, s, side: str) -> SideMetrics:
         atrial_min=jnp.min(s[f"{atrium}_pressure"]),
         ventricle_min_pressure=jnp.min(pressure),
         ventricle_max_pressure=jnp.max(pressure),
-        stroke_work=-trapezoid(pressure, volume),
+        stroke_work=stroke_work,
         peak_force=pump[0],
         min_cable_force=pump[1],
         cable_work=pump[2],
+        efficiency=stroke_work / pump[2],
     )
 
 

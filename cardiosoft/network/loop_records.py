@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import math
 
+from cardiosoft.network.block_metrics import chamber_record, time_mean
 from cardiosoft.units import ml, mm, mmHg
 
 __all__ = [
     "LOOP_NUMBERS", "PUMP_NUMBERS", "SIDE_NUMBERS", "banded_keys", "loop_band_table",
-    "loop_summary_records", "loop_table", "loop_trace_columns", "record_numbers",
+    "loop_block_records", "loop_summary_records", "loop_table", "loop_trace_columns",
+    "record_numbers",
 ]  # fmt: skip
 
 
@@ -36,9 +38,12 @@ SIDE_NUMBERS = (
     ("{artery}_mean_mmHg", "arterial_mean", mmHg, "mmHg", "time mean of the arterial pressure"),
     ("{atrium}_mean_mmHg", "atrial_mean", mmHg, "mmHg", "time mean of the atrial pressure"),
     ("{side}_peak_force_N", "peak_force", 1.0, "N", "a pump's largest cable force"),
+    ("{side}_stroke_work_J", "stroke_work", 1.0, "J",
+     "the ventricle's stroke work, the pressure-volume loop's area"),
     ("{side}_cable_work_J", "cable_work", 1.0, "J", "a pump's net cable work over the beat"),
+    ("{side}_efficiency", "efficiency", 1.0, "1", "a pump's stroke work over its cable work"),
 )  # fmt: skip
-PUMP_NUMBERS = frozenset({"peak_force", "cable_work"})
+PUMP_NUMBERS = frozenset({"peak_force", "cable_work", "efficiency"})
 """The fields of :data:`SIDE_NUMBERS` a native ventricle has not (NaN, ``None`` in records)."""
 LOOP_NUMBERS = (
     ("pulmonary_volume_ml", "pulmonary_volume", ml, "ml", "mean pulmonary blood volume"),
@@ -64,12 +69,38 @@ def record_numbers(sides=("left", "right"), *, pumps=("left", "right")) -> dict:
     return out
 
 
+def loop_block_records(traces: dict) -> dict[str, dict]:
+    """Each chamber's and vessel's record of one member's reported beat (``traces``: its
+    signals, SI), as an svZeroDSolver model's (:func:`cardiosoft.network.block_metrics.
+    block_metrics`) but in user units: a chamber's EDV, ESV, SV (ml) and EF; a vessel's mean,
+    systolic and diastolic pressure (mmHg) and its inlet's mean flow (l/min: the valve's or
+    vessel's before it)."""
+    from cardiosoft.network.closed_loop import CHAMBERS, NODES, VESSELS
+
+    time = traces["time"]
+    out = {}
+    for c in CHAMBERS:
+        beat = chamber_record(traces[f"{c}_volume"] / ml)
+        out[c] = {f"{k}_ml" if k != "ejection_fraction" else k: v for k, v in beat.items()}
+    for v in VESSELS:
+        pressure = traces[f"{v}_pressure"] / mmHg
+        inlet = next(up for up, down in NODES if down == v)
+        out[v] = {
+            "pressure_mean_mmHg": time_mean(pressure, time),
+            "pressure_systolic_mmHg": float(pressure.max()),
+            "pressure_diastolic_mmHg": float(pressure.min()),
+            "flow_mean_l_min": time_mean(traces[f"{inlet}_flow"], time) / L_MIN,
+        }
+    return out
+
+
 def loop_summary_records(result) -> list[dict]:
     """One JSON-ready record per member of a closed loop's
     :class:`~cardiosoft.results.RunResult` in user units (``summary.json``): per side SV, EDV,
-    ESV, EF, CO, the net output, arterial pressures, mean atrial pressure, a pump's peak force
-    and cable work (:data:`SIDE_NUMBERS`); the pulmonary and systemic volumes; the run's state
-    and flags."""
+    ESV, EF, CO, the net output, arterial pressures, mean atrial pressure, the stroke work, a
+    pump's peak force, cable work and efficiency (:data:`SIDE_NUMBERS`); the pulmonary and
+    systemic volumes; the run's state and flags; with traces, ``blocks``: each chamber's and
+    vessel's record (:func:`loop_block_records`)."""
     numbers = record_numbers().items()
     records = []
     for m in result.members:
@@ -84,7 +115,10 @@ def loop_summary_records(result) -> list[dict]:
             "message": m.message,
             "flags": list(m.flags),
         }
-        records.append({k: _none_if_nan(v) for k, v in record.items()})
+        record = {k: _none_if_nan(v) for k, v in record.items()}
+        if m.traces is not None:
+            record["blocks"] = loop_block_records(m.traces)
+        records.append(record)
     return records
 
 

@@ -321,7 +321,7 @@ def check_member(v: MemberView, domain: Domain | None = None) -> tuple[list, lis
     return problems, notes
 
 
-PUMP_FIELDS = ("peak_force", "min_cable_force", "cable_work")
+PUMP_FIELDS = ("peak_force", "min_cable_force", "cable_work", "efficiency")
 """A closed-loop side's pump fields (:class:`~cardiosoft.network.loop_batch.SideMetrics`): NaN, by
 definition, for a native ventricle."""
 BALANCE_QUADRATURE = 5e-6
