@@ -154,3 +154,27 @@ def test_the_combined_heart_block_has_a_record_per_chamber():
         volume = traces.values[f"V_{chamber}:CLH"]
         record = blocks[f"CLH:{chamber}"]
         assert (record["edv"], record["esv"]) == (np.max(volume), np.min(volume))
+
+
+def test_the_records_describe_the_last_beat_when_every_beat_is_output(tmp_path):
+    """An RCR charged from rest (time constant Rd C = 10 s) over 30 beats, every beat output:
+    the records are the last beat's (its extremes and means), not the run's."""
+    from cardiosoft.simulate import main
+
+    config = json.loads((CASE.parent / "steadyFlow_R_RCR.json").read_text())
+    config["boundary_conditions"][1]["bc_values"]["C"] = 0.01
+    config["simulation_parameters"] |= {"steady_initial": False, "output_all_cycles": True}
+    path = tmp_path / "charging_rcr.json"
+    path.write_text(json.dumps(config))
+    out = tmp_path / "run"
+    assert main(["--scene", str(path), "--out", str(out), "--quiet"]) == 0
+    record = json.loads((out / "summary.json").read_text())["blocks"]["OUT"]
+    header = (out / "traces.csv").read_text().splitlines()[0].split(",")
+    table = np.loadtxt(out / "traces.csv", delimiter=",", skiprows=1)
+    points = config["simulation_parameters"]["number_of_time_pts_per_cardiac_cycle"]
+    assert table.shape[0] == 30 * (points - 1) + 1  # every beat in traces.csv
+    pressure = table[-points:, header.index("pressure:branch0_seg0:OUT")]
+    assert record["pressure_diastolic"] == pytest.approx(pressure.min(), rel=1e-9)
+    assert record["pressure_systolic"] == pytest.approx(pressure.max(), rel=1e-9)
+    # the run's own lowest: Rp Q = 5,000 at rest, the capacitor empty
+    assert np.min(table[:, header.index("pressure:branch0_seg0:OUT")]) < 0.6 * pressure.min()

@@ -5,6 +5,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from cardiosoft import network
 from cardiosoft.network import run
@@ -65,3 +66,42 @@ def test_simulate_steady_reports_a_steady_state_not_reached(tmp_path, monkeypatc
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steady"] is False and summary["beats"] == 3
     assert summary["steady_residual"] > 1.0
+
+
+CYCLE_CASES = Path(__file__).parent / "data" / "svzerod"
+
+
+def _beats_svzerod_runs(config) -> int:
+    """The beats svzerod itself ran (every beat is output in these cases)."""
+    out = network.run_svzerod(config)
+    points = config["simulation_parameters"]["number_of_time_pts_per_cardiac_cycle"]
+    return (len(next(iter(out.values()))) - 1) // (points - 1)
+
+
+def test_cycle_to_cycle_error_with_an_rcr_runs_svzerods_count_of_beats():
+    """``use_cycle_to_cycle_error`` with RCR outlets: ceil(-max(Rd C) / T ln(error)) beats
+    (Pfaller et al. 2021, eq. 21), the model's own count replaced, as svzerod counts them."""
+    case = CYCLE_CASES / "pulsatileFlow_bifurcationR_RCR_cycle_error.json"
+    config = json.loads(case.read_text())
+    model = network.read(config)
+    taus = [b["bc_values"]["Rd"] * b["bc_values"]["C"] for b in config["boundary_conditions"]
+            if b["bc_type"] == "RCR"]  # fmt: skip
+    expected = int(np.ceil(-max(taus) / model.network.period * np.log(0.01)))
+    assert model.simulation.cycles == expected == _beats_svzerod_runs(config)
+    assert expected != config["simulation_parameters"]["number_of_cardiac_cycles"]
+    config["simulation_parameters"]["number_of_cardiac_cycles"] = 1  # svzerod asserts >= 2
+    with pytest.raises(network.UnsupportedModel, match="use_cycle_to_cycle_error"):
+        network.read(config)
+
+
+@pytest.mark.slow
+def test_cycle_to_cycle_error_without_an_rcr_runs_until_the_caps_settle():
+    """Without an RCR, beats go on after the model's own until the inlet cap's mean flow and
+    pressure change by at most 1 % a beat: as many as svzerod runs (31 for this coronary, 20
+    of them the model's), every beat output."""
+    config = json.loads((CYCLE_CASES / "pulsatileFlow_R_coronary_cycle_error.json").read_text())
+    traces = network.simulate(network.read(config))
+    assert traces.solved and traces.steady and traces.residual <= 1.0
+    assert traces.beats == _beats_svzerod_runs(config) > 20
+    points = config["simulation_parameters"]["number_of_time_pts_per_cardiac_cycle"]
+    assert len(traces.time) == traces.beats * (points - 1) + 1

@@ -1,5 +1,5 @@
 """``cardiosoft simulate --scene model.json``: an svZeroDSolver model, run as svZeroDSolver runs
-it. Prints each node's mean pressure and flow over the reported beat in the model's own units,
+it. Prints each node's mean pressure and flow over the last beat in the model's own units,
 then each chamber's and vessel's record (:mod:`cardiosoft.network.block_metrics`; also
 ``summary.json``'s ``blocks``) and, with ``--out DIR``, writes ``traces.csv`` (``time`` and
 one column per svZeroDSolver variable, under svZeroDSolver's names) and ``summary.json``.
@@ -114,12 +114,13 @@ def simulate_model(args, console) -> int:
             f"not at the periodic steady state after {traces.beats} beats (the last beat's "
             f"change {traces.residual:.3g} times the steady tolerance)",
         )
-    pump = None if placement is None else pump_metrics(traces, placement, net.nodes)
-    blocks = block_metrics(net, traces)
+    beat = traces.last_beat(sim.points_per_cycle)  # what the records describe
+    pump = None if placement is None else pump_metrics(beat, placement, net.nodes)
+    blocks = block_metrics(net, beat)
     for flag in [] if pump is None else pump_flags(pump):
         console.flag(model.name, flag)
     if not args.quiet:
-        print(_table(model, traces))
+        print(_table(model, beat))
         if blocks:
             print(block_table(blocks))
         if pump is not None:

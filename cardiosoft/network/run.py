@@ -8,6 +8,7 @@ read out at the same times, so the answer is the model's converged one, not the 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import diffrax
@@ -36,7 +37,9 @@ class Traces:
     - ``steady``: with :func:`simulate`'s ``steady``, whether the periodic steady state was
       reached (None when the model's own beats were run), after ``beats`` beats (the reported
       one included), the last one's cycle-to-cycle change ``residual`` (the largest state's
-      change over its tolerance; at most 1 when steady).
+      change over its tolerance; at most 1 when steady). A model's own
+      ``use_cycle_to_cycle_error`` without an RCR fills them too: whether its caps settled,
+      the beats run in all, and the caps' largest change over its bound.
 
     A batch of variants (:func:`simulate`'s ``variants``) puts the variants' axis first in every
     ``values`` array; the flags hold for all of them and ``steps`` is the most any took.
@@ -51,6 +54,15 @@ class Traces:
     steady: bool | None = None
     beats: int | None = None
     residual: float | None = None
+
+    def last_beat(self, points: int) -> Traces:
+        """The last ``points`` samples (the model's points a beat: its last beat, whether or not
+        every beat was output), time from 0."""
+        if self.time.shape[0] == points:
+            return self
+        values = {k: v[..., -points:] for k, v in self.values.items()}
+        time = self.time[-points:] - self.time[-points]
+        return dataclasses.replace(self, time=time, values=values)
 
     def write_csv(self, path) -> None:
         """``time`` and one column per variable, as ``path`` (written whole or not at all)."""
@@ -150,9 +162,13 @@ def simulate(
         steady_start = bool(jnp.all(ok))
     x0 = each(_consistent, 0, 0 if sim.steady_initial else None)(net, x0)
     cycles, output_all = (1, False) if steady else (sim.cycles, sim.output_all_cycles)
+    caps = () if steady else sim.caps
+    if caps and variants is not None:
+        raise ValueError("use_cycle_to_cycle_error runs one model, not a batch of variants")
     dt = model.network.period / sim.steps_per_cycle
     t_all = dt * np.arange(sim.steps_per_cycle * cycles + 1)
-    ts = t_all if output_all else t_all[-sim.points_per_cycle :]
+    kept = sim.points_per_cycle + sim.steps_per_cycle * bool(caps)  # caps: the last two beats
+    ts = t_all if output_all else t_all[-kept:]
     ts = jnp.asarray(ts)
     periodic = dict(steady=None, beats=None, residual=None)
     if model.network.n_states == 0:
@@ -179,13 +195,18 @@ def simulate(
                 residual = float(jnp.max(residual))
                 periodic = dict(steady=started and residual <= 1.0, beats=int(jnp.max(beats)))
                 periodic["residual"] = residual
-            zs, internal, converged, result, steps = each(_run, 0, 0, None, None, None, None)(
+            zs, internal, converged, result, steps, x_end = each(_run, 0, 0, *[None] * 4)(
                 net, x_first, float(t_all[-1]), ts, jumps, config
             )
             solved = started and bool(jnp.all(result == diffrax.RESULTS.successful))
             if solved:
                 break
         steps = int(jnp.max(steps))
+        if caps and solved:
+            zs, internal, converged, ts, periodic, more = _until_caps_settle(
+                model, x_end, (zs, internal, converged, ts), dt, config, base.max_steps
+            )
+            solved, steps = periodic["steady"] is not None, steps + more
     solved = solved and bool(jnp.all(converged))
     values = {}
     n = model.network.n_nodes
@@ -193,8 +214,54 @@ def simulate(
         values[f"pressure:{up}:{down}"] = np.asarray(zs[..., i])
         values[f"flow:{up}:{down}"] = np.asarray(zs[..., n + i])
     values.update({k: np.asarray(v) for k, v in internal.items()})
+    if caps and not output_all:  # the last beat alone
+        values = {k: v[-sim.points_per_cycle :] for k, v in values.items()}
+        ts = ts[-sim.points_per_cycle :]
     time = ts if sim.output_all_cycles else ts - ts[0]
     return Traces(np.asarray(time), values, solved, steady_start, steps, stiff, **periodic)
+
+
+def _caps_change(zs, caps, n, steps, error) -> float:
+    """svZeroDSolver's ``check_vessel_cap_convergence`` on the last two beats of ``zs``: the
+    largest change of a cap's mean flow or mean pressure over a beat's ``steps + 1`` samples
+    (both ends, as svZeroDSolver averages them), relative to the earlier beat's, over
+    ``error``. Settled at most 1; a 0 / 0 (NaN) passes, as upstream."""
+    window = np.asarray(zs[-(2 * steps + 1) :])
+    columns = [c for i in caps for c in (n + i, i)]
+    before, last = window[: steps + 1, columns].mean(0), window[steps:, columns].mean(0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        change = np.abs((last - before) / before) / error
+    return float(np.max(np.nan_to_num(change, nan=0.0), initial=0.0))
+
+
+def _until_caps_settle(model, x_end, run, dt, config, beat_steps):
+    """``use_cycle_to_cycle_error`` without an RCR (:attr:`Simulation.cycle_error`): after the
+    model's beats (``run``: their nodes, internal variables, Newton's flag and output times,
+    the last two beats at least), one beat more at a time from ``x_end`` until the caps settle,
+    at most :data:`STEADY_MAX_BEATS` more. Returns the run extended by those beats, the
+    periodic record (``steady`` None when a beat failed; ``beats`` all that ran) and the steps
+    they took."""
+    sim, net = model.simulation, model.network
+    steps, n = sim.steps_per_cycle, net.n_nodes
+    caps = [net.nodes.index(tuple(c.split(":"))) for c in sim.caps]
+    zs, internal, converged, ts = run
+    beat = jnp.asarray(dt * np.arange(steps + 1))
+    jumps = _jump_times(net, float(beat[-1]))
+    config = dataclasses.replace(config, max_steps=beat_steps)
+    extra, taken = 0, 0
+    change = _caps_change(zs, caps, n, steps, sim.cycle_error)
+    while change > 1.0 and extra < STEADY_MAX_BEATS:
+        z1, i1, c1, result, s1, x_end = _run(net, x_end, float(beat[-1]), beat, jumps, config)
+        if not bool(result == diffrax.RESULTS.successful):
+            record = dict(steady=None, beats=sim.cycles + extra + 1, residual=None)
+            return zs, internal, converged, ts, record, taken
+        zs = jnp.concatenate([zs, z1[1:]])
+        internal = {k: jnp.concatenate([v, i1[k][1:]]) for k, v in internal.items()}
+        converged, ts = converged & c1, jnp.concatenate([ts, ts[-1] + beat[1:]])
+        extra, taken = extra + 1, taken + int(s1)
+        change = _caps_change(zs, caps, n, steps, sim.cycle_error)
+    record = dict(steady=change <= 1.0, beats=sim.cycles + extra, residual=change)
+    return zs, internal, converged, ts, record, taken
 
 
 @eqx.filter_jit
@@ -243,4 +310,5 @@ def _field(t, x, net):
 def _run(net, x0, t_end, ts, jumps, config):
     """The network's states from ``x0`` at t = 0 to ``t_end``, read out at ``ts``."""
     sol = integrate(_field, x0, 0.0, t_end, args=net, ts=ts, jump_ts=jumps, config=config)
-    return (*_read_out(net, ts, sol.ys), sol.result, sol.stats["num_accepted_steps"])
+    steps = sol.stats["num_accepted_steps"]
+    return (*_read_out(net, ts, sol.ys), sol.result, steps, sol.ys[-1])
