@@ -238,7 +238,8 @@ def _until_caps_settle(model, x_end, run, dt, config, beat_steps):
     """``use_cycle_to_cycle_error`` without an RCR (:attr:`Simulation.cycle_error`): after the
     model's beats (``run``: their nodes, internal variables, Newton's flag and output times,
     the last two beats at least), one beat more at a time from ``x_end`` until the caps settle,
-    at most :data:`STEADY_MAX_BEATS` more. Returns the run extended by those beats, the
+    at most :data:`STEADY_MAX_BEATS` more. Returns the run extended by those beats (every
+    beat kept only with ``output_all_cycles``, else the last two), the
     periodic record (``steady`` None when a beat failed; ``beats`` all that ran) and the steps
     they took."""
     sim, net = model.simulation, model.network
@@ -255,9 +256,10 @@ def _until_caps_settle(model, x_end, run, dt, config, beat_steps):
         if not bool(result == diffrax.RESULTS.successful):
             record = dict(steady=None, beats=sim.cycles + extra + 1, residual=None)
             return zs, internal, converged, ts, record, taken
-        zs = jnp.concatenate([zs, z1[1:]])
-        internal = {k: jnp.concatenate([v, i1[k][1:]]) for k, v in internal.items()}
-        converged, ts = converged & c1, jnp.concatenate([ts, ts[-1] + beat[1:]])
+        kept = slice(None) if sim.output_all_cycles else slice(-(2 * steps + 1), None)
+        zs = jnp.concatenate([zs, z1[1:]])[kept]
+        internal = {k: jnp.concatenate([v, i1[k][1:]])[kept] for k, v in internal.items()}
+        converged, ts = converged & c1, jnp.concatenate([ts, ts[-1] + beat[1:]])[kept]
         extra, taken = extra + 1, taken + int(s1)
         change = _caps_change(zs, caps, n, steps, sim.cycle_error)
     record = dict(steady=change <= 1.0, beats=sim.cycles + extra, residual=change)
