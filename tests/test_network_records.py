@@ -178,3 +178,22 @@ def test_the_records_describe_the_last_beat_when_every_beat_is_output(tmp_path):
     assert record["pressure_systolic"] == pytest.approx(pressure.max(), rel=1e-9)
     # the run's own lowest: Rp Q = 5,000 at rest, the capacitor empty
     assert np.min(table[:, header.index("pressure:branch0_seg0:OUT")]) < 0.6 * pressure.min()
+
+
+def test_a_pump_that_does_no_cable_work_has_no_efficiency():
+    """A beat whose pull does not move (zero cable work): the efficiency is None (null in
+    ``summary.json``), not a division by zero."""
+    from types import SimpleNamespace
+
+    t = np.linspace(0.0, 1.0, 11)
+    values = {
+        "Vc:lv": 1e-4 * (1.5 + np.cos(2 * np.pi * t)),  # m^3 ("si")
+        "cable_force:lv": np.full_like(t, 10.0),
+        "pull:lv": np.full_like(t, 0.01),
+        "pressure:a:lv": 1e3 * (1.0 + np.sin(2 * np.pi * t)),
+    }
+    record = pump_metrics(
+        SimpleNamespace(values=values), PumpPlacement("lv", "si"), [("a", "lv"), ("lv", "b")]
+    )
+    assert record["cable_work_J"] == 0.0 and record["efficiency"] is None
+    assert record["stroke_volume_ml"] == pytest.approx(200.0)

@@ -130,7 +130,7 @@ def simulate_model(args, console) -> int:
                 f"ESV {pump['esv_ml']:.1f} ml, SV {pump['stroke_volume_ml']:.1f} ml, "
                 f"EF {pump['ejection_fraction']:.2f}, peak cable force "
                 f"{pump['peak_force_N']:.1f} N, cable work {pump['cable_work_J']:.3f} J, "
-                f"efficiency {pump['efficiency']:.2f}"
+                f"efficiency {_or_dash(pump['efficiency'])}"
             )
     if out_dir is not None:
         summary = {
@@ -166,6 +166,10 @@ def simulate_model(args, console) -> int:
         for name in OUTPUT_FILES:
             console.say(f"wrote {out_dir / name}")
     return console.status()
+
+
+def _or_dash(value) -> str:
+    return "-" if value is None else f"{value:.2f}"
 
 
 def _placement(args):

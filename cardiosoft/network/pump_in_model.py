@@ -170,7 +170,7 @@ def pump_metrics(traces, placement: PumpPlacement, nodes) -> dict:
         "max_pressure_mmHg": float(pressure.max() / mmHg),
         "cable_work_J": cable_work,
         "stroke_work_J": stroke_work,
-        "efficiency": stroke_work / cable_work,
+        "efficiency": stroke_work / cable_work if cable_work else None,  # None: no work in
     }
 
 
