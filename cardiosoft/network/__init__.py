@@ -8,8 +8,8 @@ svZeroDSolver files carry no units: a model is solved in its own (CGS, mmHg-ml-s
 from cardiosoft.network.network import Network as Network
 from cardiosoft.network.run import Traces as Traces
 from cardiosoft.network.run import simulate as simulate
+from cardiosoft.network.simulation_parameters import UnsupportedModel as UnsupportedModel
 from cardiosoft.network.svzerod import SUPPORTED_BLOCKS as SUPPORTED_BLOCKS
 from cardiosoft.network.svzerod import Model as Model
-from cardiosoft.network.svzerod import UnsupportedModel as UnsupportedModel
 from cardiosoft.network.svzerod import read as read
 from cardiosoft.network.svzerod import run_svzerod as run_svzerod

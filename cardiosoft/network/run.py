@@ -235,13 +235,13 @@ def _caps_change(zs, caps, n, steps, error) -> float:
 
 
 def _until_caps_settle(model, x_end, run, dt, config, beat_steps):
-    """``use_cycle_to_cycle_error`` without an RCR (:attr:`Simulation.cycle_error`): after the
-    model's beats (``run``: their nodes, internal variables, Newton's flag and output times,
-    the last two beats at least), one beat more at a time from ``x_end`` until the caps settle,
-    at most :data:`STEADY_MAX_BEATS` more. Returns the run extended by those beats (every
-    beat kept only with ``output_all_cycles``, else the last two), the
-    periodic record (``steady`` None when a beat failed; ``beats`` all that ran) and the steps
-    they took."""
+    """``use_cycle_to_cycle_error`` without an RCR (:attr:`~cardiosoft.network.
+    simulation_parameters.Simulation.cycle_error`): after the model's beats (``run``: their
+    nodes, internal variables, Newton's flag and output times, the last two beats at least),
+    one beat more at a time from ``x_end`` until the caps settle, at most
+    :data:`STEADY_MAX_BEATS` more. Returns the run extended by those beats (every beat kept
+    only with ``output_all_cycles``, else the last two), the periodic record (``steady`` None
+    when a beat failed; ``beats`` all that ran) and the steps they took."""
     sim, net = model.simulation, model.network
     steps, n = sim.steps_per_cycle, net.n_nodes
     caps = [net.nodes.index(tuple(c.split(":"))) for c in sim.caps]
