@@ -357,15 +357,25 @@ class PumpCircuit(eqx.Module):
         )
         return {"pull": x, "shell_pull": shell_pull, "shell_force": tension}
 
+    def _chamber(self, t, y):
+        """The pulls (:meth:`_shell_pull`) and the chamber law at the shell's pull."""
+        pulls = self._shell_pull(t, y)
+        return pulls, self.pump.chamber(pulls.get("shell_pull", pulls["pull"]), self.omega)
+
+    def relaxation_rate(self, t, y) -> jax.Array:
+        """ds_v/dt (m^3/s) of the shell's dashpot at time t (with its viscoelasticity): the
+        chamber law at the shell's pull, without the cavity's pressure."""
+        chamber = self._chamber(t, y)[1]
+        return self.viscoelasticity.rate(chamber, y["volume"], y["relaxation"])
+
     def pump_pressure(self, t, y) -> dict:
         """The pump's side at time t (SI): the disk's pull (and, with slack cables, the shell's
         own and the tension), the chamber law at the shell's pull (``chamber``) and the
         cavity's pressure with the shell's effects (``pump_pressure``, Pa). Reads only
         ``y["volume"]`` and ``y["relaxation"]``: the law of the network's pump block
         (:class:`cardiosoft.network.bench.ShellPump`)."""
-        out = self._shell_pull(t, y)
+        out, chamber = self._chamber(t, y)
         volume = y["volume"]
-        chamber = self.pump.chamber(out.get("shell_pull", out["pull"]), self.omega)
         p_pump = chamber.pressure(volume)
         if self.wall_contact is not None:
             p_pump = p_pump + self.wall_contact.pressure(volume)

@@ -55,7 +55,7 @@ class ShellPump(Block):
     volume s_v (m^3). ``dV/dt = Q_in - Q_out``; ``ds_v/dt`` as
     :meth:`~cardiosoft.circuit.ShellViscoelasticity.rate`. The pressure law is
     ``shell.pump_pressure`` (:meth:`~cardiosoft.circuit.PumpCircuit.pump_pressure`, which
-    reads the pump's side of the circuit only)."""
+    reads the pump's side of the circuit only), the dashpot's ``shell.relaxation_rate``."""
 
     shell: PumpCircuit
     kind = "SoftPump"
@@ -67,14 +67,14 @@ class ShellPump(Block):
     def state_kinds(self):
         return ("volume",) * self.n_states
 
-    def _side(self, t, x):
+    def _state(self, x) -> dict:
         y = {"volume": x[0]}
         if self.shell.viscoelasticity is not None:
             y["relaxation"] = x[1]
-        return y, self.shell.pump_pressure(t, y)
+        return y
 
     def residuals(self, t, x, P, Q, steady=False):
-        pressure = self._side(t, x)[1]["pump_pressure"]
+        pressure = self.shell.pump_pressure(t, self._state(x))["pump_pressure"]
         if len(self.ports) == 1:
             return jnp.stack([P[0] - pressure])
         return jnp.stack([P[0] - pressure, P[1] - P[0]])
@@ -83,10 +83,8 @@ class ShellPump(Block):
         inflow = Q[0] if len(self.ports) == 2 else 0.0
         rates = [inflow - Q[len(self.ports) - 1]]
         if self.shell.viscoelasticity is not None:
-            y, side = self._side(t, x)
-            rates.append(
-                self.shell.viscoelasticity.rate(side["chamber"], y["volume"], y["relaxation"])
-            )
+            # the dashpot needs the chamber law alone, not the cavity's pressure again
+            rates.append(self.shell.relaxation_rate(t, self._state(x)))
         return jnp.stack(rates)
 
 
