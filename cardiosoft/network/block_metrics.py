@@ -42,6 +42,14 @@ def chamber_record(volume) -> dict:
     return dict(zip(CHAMBER_KEYS, (edv, esv, edv - esv, (edv - esv) / edv), strict=True))
 
 
+def vessel_record(pressure, flow, time) -> dict:
+    """A vessel's beat from its inlet's pressure and flow samples at ``time``: the mean,
+    systolic (largest) and diastolic (smallest) pressure and the mean flow (their units)."""
+    pressure = np.asarray(pressure, dtype=float)
+    numbers = (time_mean(pressure, time), pressure.max(), pressure.min(), time_mean(flow, time))
+    return dict(zip(VESSEL_KEYS, map(float, numbers), strict=True))
+
+
 def block_metrics(network, traces) -> dict[str, dict]:
     """``{name: record}`` of every chamber and vessel of ``network`` (a
     :class:`~cardiosoft.network.network.Network`) from ``traces``
@@ -59,10 +67,8 @@ def block_metrics(network, traces) -> dict[str, dict]:
         )
         if inlet is None:  # a vessel with no inlet node (fed by a flow source inside it)
             continue
-        pressure = np.asarray(values["pressure:{}:{}".format(*inlet)], dtype=float)
-        flow = values["flow:{}:{}".format(*inlet)]
-        numbers = (time_mean(pressure, time), pressure.max(), pressure.min(), time_mean(flow, time))
-        out[block.name] = dict(zip(VESSEL_KEYS, map(float, numbers), strict=True))
+        node = "{}:{}".format(*inlet)
+        out[block.name] = vessel_record(values[f"pressure:{node}"], values[f"flow:{node}"], time)
     return out
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from cardiosoft.network.block_metrics import chamber_record, time_mean
+from cardiosoft.network.block_metrics import VESSEL_KEYS, chamber_record, vessel_record
 from cardiosoft.units import ml, mm, mmHg
 
 __all__ = [
@@ -77,20 +77,18 @@ def loop_block_records(traces: dict) -> dict[str, dict]:
     vessel's before it)."""
     from cardiosoft.network.closed_loop import CHAMBERS, NODES, VESSELS
 
-    time = traces["time"]
+    def named(record, units):  # a key with its unit's name
+        return {f"{k}_{units[k]}" if units.get(k) else k: v for k, v in record.items()}
+
     out = {}
     for c in CHAMBERS:
         beat = chamber_record(traces[f"{c}_volume"] / ml)
-        out[c] = {f"{k}_ml" if k != "ejection_fraction" else k: v for k, v in beat.items()}
+        out[c] = named(beat, dict.fromkeys(("edv", "esv", "stroke_volume"), "ml"))
     for v in VESSELS:
-        pressure = traces[f"{v}_pressure"] / mmHg
         inlet = next(up for up, down in NODES if down == v)
-        out[v] = {
-            "pressure_mean_mmHg": time_mean(pressure, time),
-            "pressure_systolic_mmHg": float(pressure.max()),
-            "pressure_diastolic_mmHg": float(pressure.min()),
-            "flow_mean_l_min": time_mean(traces[f"{inlet}_flow"], time) / L_MIN,
-        }
+        pressure, flow = traces[f"{v}_pressure"] / mmHg, traces[f"{inlet}_flow"] / L_MIN
+        units = dict.fromkeys(VESSEL_KEYS[:3], "mmHg") | {"flow_mean": "l_min"}
+        out[v] = named(vessel_record(pressure, flow, traces["time"]), units)
     return out
 
 
