@@ -52,9 +52,10 @@ STEP_VALVES = ("closedLoopHeart_singleVessel_decomposed",)
 """Cases whose tanh valves are steps (steepness 1e4 per mmHg): their valve status is not
 compared, their pressures are."""
 SUPPORTED = sorted(p.stem for p in CASES.glob("*.json") if p.stem not in NOT_COMPARED)
-FAST = ("pulsatileFlow_R_RCR",)
-"""In CI: a pulsatile RCR. An index-2 model and pure algebra through a junction are checked
-against their upstream closed forms below."""
+FAST = ("pulsatileFlow_R_RCR", "pulsatileFlow_R_RCR_mean_derivative_variable")
+"""In CI: a pulsatile RCR, and the same with svZeroDSolver's means and time derivatives. An
+index-2 model and pure algebra through a junction are checked against their upstream closed
+forms below."""
 
 
 def check_against_svzerod(name: str) -> None:
@@ -252,6 +253,27 @@ def test_simulate_command_writes_traces_under_svzerod_names(tmp_path):
     before = (tmp_path / "traces.csv").read_bytes()
     assert main(["--scene", str(case), "--out", str(tmp_path), "--quiet"]) == 2
     assert (tmp_path / "traces.csv").read_bytes() == before
+
+
+def test_simulate_command_writes_means_and_derivatives_as_svzerod_does(tmp_path):
+    """A model with ``output_mean_only`` and ``output_derivative``: ``traces.csv`` is one row,
+    ``time`` empty (svZeroDSolver leaves it empty), with every variable and its ``ydot:``,
+    each the mean of the library's samples (their agreement with svzerod is the vendored
+    case's check above)."""
+    from cardiosoft.simulate import main
+
+    case = CASES / "pulsatileFlow_R_RCR_mean_derivative_variable.json"
+    assert main(["--scene", str(case), "--out", str(tmp_path), "--quiet"]) == 0
+    header, row, *more = (tmp_path / "traces.csv").read_text().splitlines()
+    assert not more
+    names, cells = header.split(",")[1:], row.split(",")
+    assert header.split(",")[0] == "time" and cells[0] == ""
+    config = json.loads(case.read_text())
+    assert set(names) == set(network.run_svzerod(config, 1))
+    assert any(n.startswith("ydot:") for n in names)
+    traces = network.simulate(network.read(case))
+    for name, cell in zip(names, cells[1:], strict=True):
+        assert float(cell) == pytest.approx(np.mean(traces.values[name]), rel=1e-9, abs=1e-12)
 
 
 @pytest.mark.parametrize(

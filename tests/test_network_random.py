@@ -64,7 +64,6 @@ per run, ``tests/conftest.py``'s profiles; ~12 min).
 import json
 import math
 
-import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -393,8 +392,8 @@ def consistent_start(config: dict) -> dict:
     the points, where the default start gave 2.5 to 4)."""
     model = network.read(config)
     x = model.network.consistent(0.0, model.initial_states())
-    z, rates, internal, internal_rates = (
-        jax.tree_util.tree_map(np.asarray, v) for v in _start(model.network, x)
+    (z, internal), (rates, internal_rates) = jax.tree_util.tree_map(
+        np.asarray, model.network.variables_and_rates(0.0, x)
     )
     n = model.network.n_nodes
     initial, derivative = {}, {}
@@ -405,21 +404,6 @@ def consistent_start(config: dict) -> dict:
     initial.update({k: float(v) for k, v in internal.items()})
     derivative.update({k: float(v) for k, v in internal_rates.items()})
     return {**config, "initial_condition": initial, "initial_condition_d": derivative}
-
-
-@eqx.filter_jit
-def _start(net, x):
-    """The nodes' values and the blocks' internal variables at t = 0 and states ``x``, and
-    their time derivatives there (forward mode along (1, dx/dt))."""
-
-    def values(t, x):
-        z = net.node_values(t, x)
-        return z, net.outputs(t, x, z)
-
-    (z, internal), (rates, internal_rates) = jax.jvp(
-        values, (0.0, x), (1.0, net.vector_field(0.0, x))
-    )
-    return z, rates, internal, internal_rates
 
 
 def _check(config: dict, report=note) -> None:

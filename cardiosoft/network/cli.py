@@ -2,7 +2,9 @@
 it. Prints each node's mean pressure and flow over the last beat in the model's own units,
 then each chamber's and vessel's record (:mod:`cardiosoft.network.block_metrics`; also
 ``summary.json``'s ``blocks``) and, with ``--out DIR``, writes ``traces.csv`` (``time`` and
-one column per svZeroDSolver variable, under svZeroDSolver's names) and ``summary.json``.
+one column per svZeroDSolver variable, under svZeroDSolver's names; with the model's
+``output_derivative`` each one's ``ydot:NAME`` too, with ``output_mean_only`` one row of
+means) and ``summary.json``.
 
 ``--pump-chamber NAME`` puts the soft pump in place of the model's chamber NAME
 (:mod:`cardiosoft.network.pump_in_model`; ``--units`` the model's units, ``--omega``,

@@ -286,6 +286,19 @@ class Network(eqx.Module):
             out.update(b.outputs(t, xb, P, Q))
         return out
 
+    def variables_and_rates(self, t, x):
+        """The nodes' values ``z``, the internal variables (:meth:`outputs`), and the time
+        derivative of each along the solution through ``(t, x)``: forward mode along
+        ``(1, dx/dt)``, through the nodes' solve (svZeroDSolver's ``ydot``, which its
+        ``output_derivative`` writes). Returns ``(z, internal), (dz/dt, d internal/dt)``."""
+
+        def variables(t, x):
+            z = self.node_values(t, x)
+            return z, self.outputs(t, x, z)
+
+        t = jnp.asarray(t, x.dtype)
+        return jax.jvp(variables, (t, x), (jnp.ones_like(t), self.vector_field(t, x)))
+
     @eqx.filter_jit
     def consistent(self, t, x):
         """``x`` moved (least change) onto the constraints the reduction keeps: what the

@@ -28,7 +28,11 @@ class Traces:
     - ``time``: s (in the model's units); reset to 0 at the last beat's start unless every
       beat is output, as svZeroDSolver does;
     - ``values``: each variable by its svZeroDSolver name (``pressure:UP:DOWN``,
-      ``flow:UP:DOWN``, ``pressure_c:NAME``, ...), in the model's units;
+      ``flow:UP:DOWN``, ``pressure_c:NAME``, ...), in the model's units; with the model's
+      ``output_derivative``, then each one's time derivative as ``ydot:NAME`` (its units per
+      the model's unit of time);
+    - ``mean_only``: the model's ``output_mean_only``: :meth:`write_csv` writes each
+      variable's mean (:meth:`means`), not its samples;
     - ``solved``: the time integration reached the end, and the nodes' Newton converged at
       every output time; ``steady_start``: the steady start-up's
       Newton converged (None when the model starts from its initial condition);
@@ -54,6 +58,13 @@ class Traces:
     steady: bool | None = None
     beats: int | None = None
     residual: float | None = None
+    mean_only: bool = False
+
+    def means(self) -> dict:
+        """Each variable's mean over the output samples, as svZeroDSolver's ``output_mean_only``
+        takes it: the samples' arithmetic mean, both ends of a beat included (not the time
+        mean, :func:`~cardiosoft.network.block_metrics.time_mean`)."""
+        return {k: np.mean(v, axis=-1) for k, v in self.values.items()}
 
     def last_beat(self, points: int) -> Traces:
         """The last ``points`` samples (the model's points a beat: its last beat, whether or not
@@ -65,11 +76,17 @@ class Traces:
         return dataclasses.replace(self, time=time, values=values)
 
     def write_csv(self, path) -> None:
-        """``time`` and one column per variable, as ``path`` (written whole or not at all)."""
+        """``time`` and one column per variable, as ``path`` (written whole or not at all); with
+        ``mean_only``, one row of :meth:`means` and an empty ``time``, as svZeroDSolver leaves
+        it."""
         from cardiosoft.files import atomic_path
 
         names = list(self.values)
-        table = np.column_stack([self.time, *(self.values[n] for n in names)])
+        if self.mean_only:
+            means = self.means()
+            table = [["", *(f"{means[n]:.10g}" for n in names)]]
+        else:
+            table = np.column_stack([self.time, *(self.values[n] for n in names)])
         with atomic_path(path) as tmp:
             np.savetxt(
                 tmp,
@@ -77,7 +94,7 @@ class Traces:
                 delimiter=",",
                 header=",".join(["time", *names]),
                 comments="",
-                fmt="%.10g",
+                fmt="%s" if self.mean_only else "%.10g",
             )
 
 
@@ -172,7 +189,9 @@ def simulate(
     ts = jnp.asarray(ts)
     periodic = dict(steady=None, beats=None, residual=None)
     if model.network.n_states == 0:
-        zs, internal, converged = each(_read_out, 0, None, 0)(net, ts, jnp.zeros((ts.shape[0], 0)))
+        zs, internal, converged = each(_read_out, 0, None, 0, None)(
+            net, ts, jnp.zeros((ts.shape[0], 0)), sim.derivative
+        )
         steps, stiff, solved = 0, False, True
         if steady:  # nothing to settle: every beat is the same
             periodic = dict(steady=True, beats=1, residual=0.0)
@@ -195,8 +214,8 @@ def simulate(
                 residual = float(jnp.max(residual))
                 periodic = dict(steady=started and residual <= 1.0, beats=int(jnp.max(beats)))
                 periodic["residual"] = residual
-            zs, internal, converged, result, steps, x_end = each(_run, 0, 0, *[None] * 4)(
-                net, x_first, float(t_all[-1]), ts, jumps, config
+            zs, internal, converged, result, steps, x_end = each(_run, 0, 0, *[None] * 5)(
+                net, x_first, float(t_all[-1]), ts, jumps, config, sim.derivative
             )
             solved = started and bool(jnp.all(result == diffrax.RESULTS.successful))
             if solved:
@@ -208,17 +227,26 @@ def simulate(
             )
             solved, steps = periodic["steady"] is not None, steps + more
     solved = solved and bool(jnp.all(converged))
-    values = {}
-    n = model.network.n_nodes
-    for i, (up, down) in enumerate(model.network.nodes):
-        values[f"pressure:{up}:{down}"] = np.asarray(zs[..., i])
-        values[f"flow:{up}:{down}"] = np.asarray(zs[..., n + i])
-    values.update({k: np.asarray(v) for k, v in internal.items()})
+    values = _node_columns(model.network, zs)
+    values.update(internal)  # with the derivative, its ydot: columns last
+    values = {k: np.asarray(v) for k, v in values.items()}
     if caps and not output_all:  # the last beat alone
         values = {k: v[-sim.points_per_cycle :] for k, v in values.items()}
         ts = ts[-sim.points_per_cycle :]
     time = ts if sim.output_all_cycles else ts - ts[0]
-    return Traces(np.asarray(time), values, solved, steady_start, steps, stiff, **periodic)
+    return Traces(
+        np.asarray(time), values, solved, steady_start, steps, stiff, **periodic,
+        mean_only=sim.mean_only,
+    )  # fmt: skip
+
+
+def _node_columns(net, zs, prefix: str = "") -> dict:
+    """Each node's pressure and flow in ``zs`` (nodes last) by svZeroDSolver's name."""
+    n, columns = net.n_nodes, {}
+    for i, (up, down) in enumerate(net.nodes):
+        columns[f"{prefix}pressure:{up}:{down}"] = zs[..., i]
+        columns[f"{prefix}flow:{up}:{down}"] = zs[..., n + i]
+    return columns
 
 
 def _caps_change(zs, caps, n, steps, error) -> float:
@@ -252,7 +280,9 @@ def _until_caps_settle(model, x_end, run, dt, config, beat_steps):
     extra, taken = 0, 0
     change = _caps_change(zs, caps, n, steps, sim.cycle_error)
     while change > 1.0 and extra < STEADY_MAX_BEATS:
-        z1, i1, c1, result, s1, x_end = _run(net, x_end, float(beat[-1]), beat, jumps, config)
+        z1, i1, c1, result, s1, x_end = _run(
+            net, x_end, float(beat[-1]), beat, jumps, config, sim.derivative
+        )
         if not bool(result == diffrax.RESULTS.successful):
             record = dict(steady=None, beats=sim.cycles + extra + 1, residual=None)
             return zs, internal, converged, ts, record, taken
@@ -294,14 +324,30 @@ def _consistent(net, x0):
     return net.consistent(0.0, x0)
 
 
+RATE_LAG = 1e-10
+"""With ``output_derivative``, the rates are read this fraction of a period before each output
+time: at a time table's sample, where the output times usually fall, a table's slope jumps,
+and the rate from the past is the one svZeroDSolver's stepping reports there (``ydot``); at
+the output time itself, rounding in ``t`` would pick the side. The states' own rates move by
+about 1e-10 of themselves over the lag."""
+
+
 @eqx.filter_jit
-def _read_out(net, ts, xs):
-    """The nodes' values, the internal variables and whether Newton converged, at ``ts``."""
+def _read_out(net, ts, xs, derivative: bool):
+    """The nodes' values, the internal variables and whether Newton converged, at ``ts``; with
+    ``derivative``, the internal variables are followed by every variable's time derivative
+    (``ydot:NAME``: the nodes', then the internal ones')."""
     zs = jax.vmap(net.node_values)(ts, xs)
+    internal = jax.vmap(net.outputs)(ts, xs, zs)
+    if derivative:
+        before = ts - RATE_LAG * net.period
+        _, (z_rates, rates) = jax.vmap(net.variables_and_rates)(before, xs)
+        internal.update(_node_columns(net, z_rates, "ydot:"))
+        internal.update({f"ydot:{k}": v for k, v in rates.items()})
     n = net.n_nodes
     scale = jnp.stack([jnp.max(jnp.abs(zs[:, :n])), jnp.max(jnp.abs(zs[:, n:]))])
     converged = jax.vmap(net.newton_converged, in_axes=(0, 0, None))(ts, xs, scale)
-    return zs, jax.vmap(net.outputs)(ts, xs, zs), jnp.all(converged)
+    return zs, internal, jnp.all(converged)
 
 
 def _field(t, x, net):
@@ -309,8 +355,9 @@ def _field(t, x, net):
 
 
 @eqx.filter_jit
-def _run(net, x0, t_end, ts, jumps, config):
-    """The network's states from ``x0`` at t = 0 to ``t_end``, read out at ``ts``."""
+def _run(net, x0, t_end, ts, jumps, config, derivative: bool):
+    """The network's states from ``x0`` at t = 0 to ``t_end``, read out at ``ts``
+    (:func:`_read_out`)."""
     sol = integrate(_field, x0, 0.0, t_end, args=net, ts=ts, jump_ts=jumps, config=config)
     steps = sol.stats["num_accepted_steps"]
-    return (*_read_out(net, ts, sol.ys), sol.result, steps, sol.ys[-1])
+    return (*_read_out(net, ts, sol.ys, derivative), sol.result, steps, sol.ys[-1])

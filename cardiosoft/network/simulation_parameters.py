@@ -9,11 +9,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-UNSUPPORTED_OPTIONS = (
-    "coupled_simulation",
-    "output_mean_only",
-    "output_derivative",
-)
+UNSUPPORTED_OPTIONS = ("coupled_simulation",)
 """svZeroDSolver simulation options the reader refuses when they are switched on."""
 
 
@@ -36,6 +32,12 @@ class Simulation:
     node of ``caps`` (``UP:DOWN``: each vessel's inlet boundary, else its outlet's) change by at
     most this much a beat (:func:`cardiosoft.network.run.simulate`)."""
     caps: tuple[str, ...] = ()
+    mean_only: bool = False
+    """``output_mean_only``: the output is each variable's mean over the output samples (both
+    ends of a beat included, every beat's with ``output_all_cycles``), as svZeroDSolver's
+    ``csv_writer`` averages them; the records still describe the last beat."""
+    derivative: bool = False
+    """``output_derivative``: the output has each variable's time derivative too (``ydot``)."""
 
     @property
     def steps_per_cycle(self) -> int:
@@ -65,6 +67,8 @@ def _parameters(sim: dict) -> Simulation:
         steady_initial=bool(sim.get("steady_initial", True)),
         output_all_cycles=bool(sim.get("output_all_cycles", False)),
         cycle_error=error,
+        mean_only=bool(sim.get("output_mean_only", False)),
+        derivative=bool(sim.get("output_derivative", False)),
     )
 
 

@@ -496,8 +496,12 @@ def _closed_loop(block: dict, period, connections, factories, heart_inlets):
 def run_svzerod(config: dict, refine: int = 1) -> dict:
     """svZeroDSolver's own answer to ``config`` (its ``svzerod`` package, in cardiosoft's
     ``[test]`` extra): every variable by name, at the model's output times, stepped with
-    ``refine`` times as many points a beat (every ``refine``-th sample is kept). The peer
-    that ``tests/test_network.py`` and ``benchmarks/svzerod_heart.py`` check against."""
+    ``refine`` times as many points a beat (every ``refine``-th sample is kept); with the
+    model's ``output_derivative``, each one's ``ydot`` too, as ``ydot:NAME`` (the names of
+    :class:`~cardiosoft.network.run.Traces`). Always the samples: ``output_mean_only`` is set
+    aside (its means are the samples' means, :meth:`~cardiosoft.network.run.Traces.means`).
+    The peer that ``tests/test_network.py`` and ``benchmarks/svzerod_heart.py`` check
+    against."""
     try:
         import svzerod
     except ImportError:
@@ -510,8 +514,13 @@ def run_svzerod(config: dict, refine: int = 1) -> dict:
     sim["output_variable_based"] = True
     points = sim["number_of_time_pts_per_cardiac_cycle"]
     sim["number_of_time_pts_per_cardiac_cycle"] = (points - 1) * refine + 1
+    sim["output_mean_only"] = False
     frame = svzerod.simulate(config)
-    return {name: group["y"].to_numpy()[::refine] for name, group in frame.groupby("name")}
+    groups = frame.groupby("name", sort=False)
+    values = {name: group["y"].to_numpy()[::refine] for name, group in groups}
+    if sim.get("output_derivative"):
+        values.update({f"ydot:{n}": group["ydot"].to_numpy()[::refine] for n, group in groups})
+    return values
 
 
 def _initial(given: dict, names: list[str]) -> dict:
