@@ -50,6 +50,7 @@ def parser(prog: str | None = None):
     _target_options(p)
     _search_options(p)
     _uncertainty_options(p)
+    _model_options(p)
     add_output_options(p, "design.json and design.png", plot="the figure")
     add_report_options(p)
     return p
@@ -133,6 +134,32 @@ def _search_options(p) -> None:
         "the one-beat map), beats (beat after beat; a lighter program, but fails where the "
         "beats ring past the scene's max_beats) or auto (the default: shooting on the "
         "water-column bench, beats on a Windkessel scene)",
+    )
+
+
+def _model_options(p) -> None:
+    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, UNIT_SYSTEMS
+
+    model = p.add_argument_group("svZeroDSolver models (--scene model.json)")
+    model.add_argument(
+        "--pump-chamber",
+        metavar="NAME",
+        help="design the soft pump in place of the model's chamber NAME (its Omega and C; "
+        "--free to hold one)",
+    )
+    model.add_argument(
+        "--units",
+        choices=tuple(UNIT_SYSTEMS),
+        help=f"the model's units (default {DEFAULT_UNITS}; mmHg: mmHg, ml, s; si: Pa, m^3, s)",
+    )
+    model.add_argument(
+        "--target",
+        action="append",
+        metavar="BLOCK.KEY=VALUE",
+        help="a target on any block's metric, in the metric's units (the pump's under its "
+        "chamber's name: NAME.stroke_volume_ml, NAME.peak_force_N, ...; a vessel's "
+        "AORTA.pressure_mean in the model's units); repeat for more. --target-sv ML stands "
+        "for NAME.stroke_volume_ml=ML",
     )
 
 
@@ -351,11 +378,13 @@ def main(argv=None, prog: str | None = None) -> int:
 
     args = parser(prog).parse_args(argv)
     jax.config.update("jax_enable_x64", True)
+    from cardiosoft.design.model_cli import MODEL_OPTIONS
     from cardiosoft.files import refuse_overwrite
     from cardiosoft.scene import load_scene
     from cardiosoft.scene_tools import tools
 
     console = Console(quiet=args.quiet, strict=args.strict)
+    model = args.scene.endswith(".json")  # an svZeroDSolver model, with the pump in it
     try:
         out_dir = Path(args.out) if args.out else None
         if out_dir is not None:
@@ -363,6 +392,14 @@ def main(argv=None, prog: str | None = None) -> int:
                 raise ValueError(f"--out {out_dir} exists and is not a folder")
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
+        for option in () if model else MODEL_OPTIONS:
+            if getattr(args, option) is not None:
+                flag = "--" + option.replace("_", "-")
+                raise ValueError(f"{flag}: only with an svZeroDSolver model (--scene *.json)")
+        if model:
+            from cardiosoft.design.model_cli import run_model_design
+
+            return run_model_design(args, out_dir, console)
         scene = load_scene(args.scene, pump=args.pump)
     except (ValueError, FileNotFoundError) as err:
         return fail(err)
