@@ -45,9 +45,9 @@ def test_design_in_a_model_hits_its_targets_when_simulated_alone(tmp_path):
     single solve, rounding differently, stop at different beats within it; the SV (below
     the volumes' scale, the EDV) and the mean pressure are held to twice that, 2e-3
     relative (measured: 1.6e-4)."""
-    from cardiosoft.design.model import block_records, metric_values
+    from cardiosoft.design.model import metric_values
     from cardiosoft.network import read, simulate
-    from cardiosoft.network.pump_in_model import PumpPlacement
+    from cardiosoft.network.pump_in_model import PumpPlacement, placed_records
 
     targets = {"LV.stroke_volume_ml": 40.0, "AR_SYS.pressure_mean": 6000.0}
     asked = [a for k, v in targets.items() for a in ("--target", f"{k}={v}")]
@@ -61,7 +61,7 @@ def test_design_in_a_model_hits_its_targets_when_simulated_alone(tmp_path):
     model = read(MODEL, pump=placement)
     traces = simulate(model, steady=True)
     assert traces.solved and traces.steady
-    alone = metric_values(block_records(model, placement, traces))
+    alone = metric_values(placed_records(model, placement, traces))
     reported = {t["name"]: t["value"] for t in record["targets"]}
     for name, target in targets.items():
         assert alone[name] == pytest.approx(target, rel=0.01)

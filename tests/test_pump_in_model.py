@@ -144,3 +144,60 @@ def test_simulate_puts_the_pump_in_a_model_and_reports_its_beat(tmp_path):
     refused = _simulate("--scene", str(model), "--pump-chamber", "LV", "--units", "si")
     assert refused.returncode == 2
     assert refused.stderr.count("\n") == 1 and "pass the model's units" in refused.stderr
+
+
+def test_uncertainty_in_a_model_needs_the_pump(tmp_path, capsys):
+    """A model's own blocks have no posterior: ``--uncertainty`` is the placed pump's."""
+    from cardiosoft.simulate import main
+
+    model = tmp_path / "small.json"
+    model.write_text(json.dumps(small_circulation("mmHg")))
+    assert main(["--scene", str(model), "--uncertainty"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "--uncertainty: with an svZeroDSolver model, only for the soft pump" in err
+
+
+@pytest.mark.slow
+def test_uncertainty_bands_of_the_placed_pump_are_its_draws_quantiles(tmp_path):
+    """``--pump-chamber LV --uncertainty``: each band (the pump's and every block's) is the
+    2.5-97.5 % quantile range of the pump's posterior draws, here each draw's pump put into
+    the model alone and solved, the quantiles taken with numpy. At the "reference" preset
+    (rtol 1e-10) a batch and a single solve, rounding differently, agree to ~1e-9; held to
+    1e-8 (as the closed loop's ensembles, tests/test_closed_loop.py)."""
+    import dataclasses
+
+    import equinox as eqx
+
+    from cardiosoft.network.pump_in_model import placed_records, pump_index
+    from cardiosoft.posterior import first_draws
+    from cardiosoft.pump import load_posterior
+    from tests.test_closed_loop import one_draw
+
+    path = tmp_path / "small.json"
+    path.write_text(json.dumps(small_circulation("mmHg")))
+    out = tmp_path / "run"
+    done = _simulate("--scene", str(path), "--pump-chamber", "LV", "--units", "mmHg",
+                     "--uncertainty", "--draws", "4", "--accuracy", "reference",
+                     "--out", str(out), "--quiet")  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert "not added" in summary["uncertainty"]["holds"]
+    placement = PumpPlacement("LV", "mmHg")
+    model = read(path, pump=placement)
+    index = pump_index(model.network, placement)
+    pump = first_draws(load_posterior(), 4).pump
+    alone = []
+    for draw in range(4):
+        net = eqx.tree_at(lambda n: n.blocks[index].law.pump, model.network, one_draw(pump, draw))
+        traces = simulate(dataclasses.replace(model, network=net), "reference")
+        alone.append(placed_records(model, placement, traces))
+    records = {"LV": summary["pump"], "aorta": summary["blocks"]["aorta"]}
+    for block, key in (("LV", "stroke_volume_ml"), ("LV", "peak_force_N"),
+                       ("aorta", "pressure_mean")):  # fmt: skip
+        record = records[block]
+        values = [a[block][key] for a in alone]
+        np.testing.assert_allclose(
+            record[f"{key}_band"], np.quantile(values, [0.025, 0.975]), rtol=1e-8, err_msg=key
+        )
+    assert np.ptp([a["LV"]["stroke_volume_ml"] for a in alone]) > 0.5  # the draws differ

@@ -74,8 +74,9 @@ class ModelTarget:
 @dataclass(frozen=True)
 class ModelDesign:
     """The answer: the design (``omega``, ``shortening``), its targets, whether all are
-    reached, the records of its beat (:func:`block_records`), the pump's flags there, whether
-    its solve succeeded and reached the periodic steady state, and the search's cost."""
+    reached, the records of its beat (:func:`~cardiosoft.network.pump_in_model.
+    placed_records`), the pump's flags there, whether its solve succeeded and reached the
+    periodic steady state, and the search's cost."""
 
     model: str
     chamber: str
@@ -131,35 +132,22 @@ class ModelDesign:
         }
 
 
-def block_records(model, placement, traces) -> dict[str, dict]:
-    """``{BLOCK: record}`` of one model's ``traces`` (its last beat is taken): the pump's
-    record (its chamber's name), then every chamber's and vessel's; the pump's chamber record
-    (the model's units) joins its own."""
-    from cardiosoft.network.block_metrics import block_metrics
-    from cardiosoft.network.pump_in_model import pump_metrics
-
-    beat = traces.last_beat(model.simulation.points_per_cycle)
-    net = model.network
-    records = {placement.chamber: pump_metrics(beat, placement, net.nodes)}
-    for name, record in block_metrics(net, beat).items():
-        records[name] = {**record, **records.get(name, {})}
-    return records
-
-
 def metric_values(records: dict[str, dict]) -> dict[str, float | None]:
-    """The records (:func:`block_records`) flat, by ``BLOCK.KEY``."""
+    """The records (:func:`~cardiosoft.network.pump_in_model.placed_records`) flat, by
+    ``BLOCK.KEY``."""
     return {f"{b}.{k}": v for b, record in records.items() for k, v in record.items()}
 
 
 def metric_names(model, placement) -> list[str]:
     """Every metric a target can name (the records of a stand-in beat)."""
+    from cardiosoft.network.pump_in_model import placed_records
     from cardiosoft.network.run import Traces
 
     n = model.simulation.points_per_cycle
     ramp = np.linspace(1.0, 2.0, n)
     stand_in = Traces(ramp, {v: ramp for v in model.variables()}, True, None, 0, False)
     with np.errstate(all="ignore"):
-        return list(metric_values(block_records(model, placement, stand_in)))
+        return list(metric_values(placed_records(model, placement, stand_in)))
 
 
 def _designs(model, placement):
@@ -168,10 +156,10 @@ def _designs(model, placement):
     import equinox as eqx
     import jax
 
+    from cardiosoft.network.pump_in_model import pump_index
+
     net = model.network
-    index = next(
-        i for i, b in enumerate(net.blocks) if b.kind == "SoftPump" and b.name == placement.chamber
-    )
+    index = pump_index(net, placement)
 
     def one(omega, shortening):
         law = net.blocks[index].law
@@ -204,6 +192,7 @@ def optimise_model(
     from scipy.optimize import least_squares
 
     from cardiosoft.network import read, simulate
+    from cardiosoft.network.pump_in_model import placed_records
     from cardiosoft.pump import Domain
 
     free = tuple(free)
@@ -256,7 +245,7 @@ def optimise_model(
         for i, u in enumerate(new):
             one = dataclasses.replace(traces, values={k: v[i] for k, v in traces.values.items()})
             with np.errstate(all="ignore"):
-                records = block_records(model, placement, one)
+                records = placed_records(model, placement, one)
             values = metric_values(records)
             got = np.array([np.nan if values[n] is None else values[n] for n in targets])
             ok = traces.solved and bool(traces.steady) and bool(np.all(np.isfinite(got)))

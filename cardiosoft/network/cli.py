@@ -8,7 +8,9 @@ means) and ``summary.json``.
 
 ``--pump-chamber NAME`` puts the soft pump in place of the model's chamber NAME
 (:mod:`cardiosoft.network.pump_in_model`; ``--units`` the model's units, ``--omega``,
-``--shortening`` and ``--pump`` its design and surrogate) and prints its beat.
+``--shortening`` and ``--pump`` its design and surrogate) and prints its beat; with
+``--uncertainty`` every record's numbers get the 95 % band of the pump's posterior draws
+(:func:`~cardiosoft.network.pump_uncertainty.pump_bands`).
 
 ``--steady`` runs beat after beat to the periodic steady state instead of the model's
 ``number_of_cardiac_cycles`` and reports the steady beat
@@ -47,7 +49,7 @@ _SCENE_ONLY = (
 """Options of ``simulate`` that belong to the pump's scenes, with their defaults."""
 
 
-_PUMP_OPTIONS = ("omega", "shortening", "pump")
+_PUMP_OPTIONS = ("omega", "shortening", "pump", "uncertainty")
 """Options of the pump's scenes that also set the soft pump of ``--pump-chamber``."""
 
 
@@ -60,6 +62,11 @@ def _check_options(args) -> None:
     for name, default in _SCENE_ONLY:
         if placing and name in _PUMP_OPTIONS:
             continue
+        if name in _PUMP_OPTIONS and getattr(args, name, default) != default:
+            raise ValueError(
+                f"--{name}: with an svZeroDSolver model, only for the soft pump of "
+                "--pump-chamber NAME"
+            )
         if getattr(args, name, default) != default:
             raise ValueError(
                 f"--{name.replace('_', '-')} does not apply to an svZeroDSolver model; "
@@ -121,6 +128,9 @@ def simulate_model(args, console) -> int:
     blocks = block_metrics(net, beat)
     for flag in [] if pump is None else pump_flags(pump):
         console.flag(model.name, flag)
+    uncertainty = None
+    if getattr(args, "uncertainty", False):
+        uncertainty = _bands(args, model, placement, steady, pump, blocks, console)
     if not args.quiet:
         print(_table(model, beat))
         if blocks:
@@ -150,6 +160,7 @@ def simulate_model(args, console) -> int:
                 **pump,
             },
             "blocks": blocks,
+            "uncertainty": uncertainty,
             "period": net.period,
             "beats": sim.cycles if traces.beats is None else traces.beats,
             "steady": traces.steady,
@@ -168,6 +179,40 @@ def simulate_model(args, console) -> int:
         for name in OUTPUT_FILES:
             console.say(f"wrote {out_dir / name}")
     return console.status()
+
+
+def _bands(args, model, placement, steady, pump, blocks, console) -> dict:
+    """``--uncertainty``: the posterior's first ``--draws`` draws of the pump in one call; each
+    number of the pump's record and of every block's gets ``KEY_band`` (the 95 % range) and
+    ``KEY_median``; failed draws flagged; prints the pump's. Returns ``summary.json``'s
+    ``uncertainty`` entry."""
+    from cardiosoft.network.closed_loop_tools import UNCERTAINTY
+    from cardiosoft.network.pump_uncertainty import pump_bands
+    from cardiosoft.posterior import first_draws
+    from cardiosoft.pump import load_posterior
+
+    posterior = first_draws(load_posterior(placement.surrogate), args.draws)
+    console.say(f"uncertainty: {args.draws} posterior draws of the pump in one call ...")
+    bands, failed, draws = pump_bands(
+        model, placement, posterior, steady, args.accuracy or "default"
+    )
+    if failed:
+        console.flag(
+            model.name,
+            f"{failed} of {draws} posterior draws failed or did not settle, and are left out "
+            "of the bands",
+        )
+    for name, record in [(placement.chamber, pump), *blocks.items()]:
+        for key, b in bands[name].items():
+            if key in record and not key.endswith(("_band", "_median")):
+                record[f"{key}_band"] = [b.low, b.high]
+                record[f"{key}_median"] = b.median
+    if not args.quiet:
+        print(f"95 % bands over {draws - failed} posterior draws ({UNCERTAINTY}):")
+        for key in ("stroke_volume_ml", "ejection_fraction", "peak_force_N", "efficiency"):
+            b = bands[placement.chamber][key]
+            print(f"  pump {key}: {_or_dash(pump[key])} in [{_or_dash(b.low)}, {_or_dash(b.high)}]")
+    return {"draws": draws, "failed_draws": failed, "holds": UNCERTAINTY}
 
 
 def _or_dash(value) -> str:

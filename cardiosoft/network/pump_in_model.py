@@ -188,3 +188,45 @@ def pump_flags(metrics: dict) -> list[str]:
     if metrics["min_force_N"] < 0:
         out.append(f"cable force down to {metrics['min_force_N']:.2f} N: a cable that would push")
     return out
+
+
+def placed_records(model, placement: PumpPlacement, traces) -> dict[str, dict]:
+    """``{BLOCK: record}`` of one model's ``traces`` with the pump placed (its last beat is
+    taken): the pump's record (:func:`pump_metrics`, under its chamber's name; the chamber's
+    record in the model's units joins it), then every chamber's and vessel's
+    (:func:`~cardiosoft.network.block_metrics.block_metrics`)."""
+    from cardiosoft.network.block_metrics import block_metrics
+
+    beat = traces.last_beat(model.simulation.points_per_cycle)
+    net = model.network
+    records = {placement.chamber: pump_metrics(beat, placement, net.nodes)}
+    for name, record in block_metrics(net, beat).items():
+        records[name] = {**record, **records.get(name, {})}
+    return records
+
+
+def pump_index(network, placement: PumpPlacement) -> int:
+    """The index of the placed pump's block among ``network.blocks``."""
+    return next(
+        i
+        for i, b in enumerate(network.blocks)
+        if isinstance(b, SoftPump) and b.name == placement.chamber
+    )
+
+
+def with_pump_draws(model, placement: PumpPlacement, pump):
+    """The model's network once per draw of the ensemble surrogate ``pump`` (a posterior's,
+    :func:`cardiosoft.pump.load_posterior`: its drawn leaves carry a leading axis), the
+    placed pump's surrogate replaced by each draw: a batch of networks for
+    :func:`cardiosoft.network.run.simulate`'s ``variants``. The pull stays the placement's."""
+    import jax
+
+    from cardiosoft.ensemble import ensemble_axes
+
+    net, index = model.network, pump_index(model.network, placement)
+
+    def one(draw):
+        return eqx.tree_at(lambda n: n.blocks[index].law.pump, net, draw)
+
+    return jax.vmap(one, in_axes=(ensemble_axes(pump),))(pump)
+
