@@ -105,3 +105,12 @@ def test_cycle_to_cycle_error_without_an_rcr_runs_until_the_caps_settle():
     assert traces.beats == _beats_svzerod_runs(config) > 20
     points = config["simulation_parameters"]["number_of_time_pts_per_cardiac_cycle"]
     assert len(traces.time) == traces.beats * (points - 1) + 1
+    # the residual is svZeroDSolver's (get_cycle_to_cycle_errors_in_flow_and_pressure): each
+    # of the last two beats' N samples (sharing the sample between them) averaged, at the cap
+    # (the vessel's inlet), the relative change over the 1 % error; to round-off
+    changes = []
+    for kind in ("flow", "pressure"):
+        y = traces.values[f"{kind}:INFLOW:branch0_seg0"][-(2 * points - 1) :]
+        before, last = y[:points].mean(), y[points - 1 :].mean()
+        changes.append(abs((last - before) / before) / 0.01)
+    assert traces.residual == pytest.approx(max(changes), rel=1e-9)
