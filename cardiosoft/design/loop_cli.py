@@ -12,28 +12,42 @@ from pathlib import Path
 from cardiosoft.console import Console, fail, fmt, table
 from cardiosoft.design.problem import DEFAULT_FREE, TOLERANCE_ML
 
-__all__ = ["loop_arguments", "loop_report", "run_loop_design"]
+__all__ = ["loop_arguments", "loop_report", "refuse_options", "run_loop_design"]
 
 
-def loop_arguments(args) -> dict:
-    """:func:`~cardiosoft.design.loop.optimise_loop`'s keyword arguments from the command
-    line; ``ValueError`` for what a closed loop does not take."""
-    refused = {
+def refuse_options(args, flags, why: str) -> None:
+    """``ValueError`` naming the first of ``flags`` (``design``'s options, as typed; ``--steady
+    shooting`` for that method) given on the command line, and ``why`` it is not taken."""
+    given = {
         "--target-sv": args.target_sv is not None,
+        "--target-co": args.target_co is not None,
         "--afterload": args.afterload is not None,
+        "--bpm": args.bpm is not None,
+        "--lap": args.lap is not None,
+        "--rap": args.rap is not None,
         "--minimize": args.minimize not in (None, "none"),
         "--maximize": args.maximize not in (None, "none"),
         "--pareto": args.pareto,
         "--tol": args.tol != TOLERANCE_ML,
         "--uncertainty": args.uncertainty,
         "--robust": args.robust,
+        "--steady shooting": args.steady == "shooting",
     }
-    for flag, given in refused.items():
-        if given:
-            raise ValueError(
-                f"{flag}: not taken on a closed-loop scene (its targets are --target-co, "
-                "--lap, --rap, reached within 0.1 l/min and 1 mmHg)"
-            )
+    for flag in flags:
+        if given[flag]:
+            raise ValueError(f"{flag}: {why}")
+
+
+def loop_arguments(args) -> dict:
+    """:func:`~cardiosoft.design.loop.optimise_loop`'s keyword arguments from the command
+    line; ``ValueError`` for what a closed loop does not take."""
+    refuse_options(
+        args,
+        ("--target-sv", "--afterload", "--minimize", "--maximize", "--pareto", "--tol",
+         "--uncertainty", "--robust"),
+        "not taken on a closed-loop scene (its targets are --target-co, --lap, --rap, "
+        "reached within 0.1 l/min and 1 mmHg)",
+    )  # fmt: skip
     if args.target_co is None:
         raise ValueError(
             "--target-co: missing; a closed loop is designed for its cardiac output (l/min), "

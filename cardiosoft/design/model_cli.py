@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 
 from cardiosoft.console import Console, fail, fmt, table
-from cardiosoft.design.problem import TOLERANCE_ML
+from cardiosoft.design.loop_cli import refuse_options
 
 __all__ = ["model_arguments", "model_report", "run_model_design"]
 
@@ -37,27 +37,13 @@ def model_arguments(args) -> dict:
     line; ``ValueError`` for what a model's design does not take."""
     from cardiosoft.network.pump_in_model import DEFAULT_UNITS, PumpPlacement
 
-    refused = {
-        "--target-co": args.target_co is not None,
-        "--afterload": args.afterload is not None,
-        "--bpm": args.bpm is not None,
-        "--lap": args.lap is not None,
-        "--rap": args.rap is not None,
-        "--minimize": args.minimize not in (None, "none"),
-        "--maximize": args.maximize not in (None, "none"),
-        "--pareto": args.pareto,
-        "--tol": args.tol != TOLERANCE_ML,
-        "--uncertainty": args.uncertainty,
-        "--robust": args.robust,
-        "--steady shooting": args.steady == "shooting",
-    }
-    for flag, given in refused.items():
-        if given:
-            raise ValueError(
-                f"{flag}: not taken on an svZeroDSolver model (its pump is designed at the "
-                "model's periodic steady state for --target BLOCK.KEY=VALUE or --target-sv, "
-                "each reached within 1 %)"
-            )
+    refuse_options(
+        args,
+        ("--target-co", "--afterload", "--bpm", "--lap", "--rap", "--minimize", "--maximize",
+         "--pareto", "--tol", "--uncertainty", "--robust", "--steady shooting"),
+        "not taken on an svZeroDSolver model (its pump is designed at the model's periodic "
+        "steady state for --target BLOCK.KEY=VALUE or --target-sv, each reached within 1 %)",
+    )  # fmt: skip
     if args.pump_chamber is None:
         raise ValueError(
             "--pump-chamber: missing; name the model's chamber the soft pump takes the place of"
