@@ -201,3 +201,34 @@ def test_uncertainty_bands_of_the_placed_pump_are_its_draws_quantiles(tmp_path):
             record[f"{key}_band"], np.quantile(values, [0.025, 0.975]), rtol=1e-8, err_msg=key
         )
     assert np.ptp([a["LV"]["stroke_volume_ml"] for a in alone]) > 0.5  # the draws differ
+
+
+def test_verify_reports_each_records_difference_from_a_reference_rerun(tmp_path):
+    """``--verify`` on a model with the pump: ``summary.json``'s ``verification`` holds, per
+    record number, the run's value, a rerun's at the reference preset and their difference.
+    Checked against the two solves made here (the same programs: to round-off, 1e-9
+    relative), so a difference scaled or taken against the wrong run fails; and the default
+    preset's error is not zero here (the rerun is a different solve)."""
+    from cardiosoft.network.pump_in_model import placed_records
+    from cardiosoft.simulate import main
+
+    path = tmp_path / "small.json"
+    path.write_text(json.dumps(small_circulation("mmHg")))
+    out = tmp_path / "run"
+    argv = ["--scene", str(path), "--pump-chamber", "LV", "--units", "mmHg", "--verify",
+            "--out", str(out), "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    verification = json.loads((out / "summary.json").read_text())["verification"]
+    placement = PumpPlacement("LV", "mmHg")
+    model = read(path, pump=placement)
+    run = placed_records(model, placement, simulate(model))
+    reference = placed_records(model, placement, simulate(model, "reference"))
+    assert verification["rerun_rtol"] == 1e-10
+    for block, key in (("LV", "stroke_volume_ml"), ("LV", "peak_force_N"),
+                       ("aorta", "pressure_mean")):  # fmt: skip
+        entry = verification["records"][block][key]
+        expected = run[block][key] - reference[block][key]
+        scale = abs(reference[block][key])
+        assert entry["difference"] == pytest.approx(expected, rel=1e-6, abs=1e-9 * scale)
+        assert entry["reference"] == pytest.approx(reference[block][key], rel=1e-9)
+    assert verification["records"]["LV"]["stroke_volume_ml"]["difference"] != 0.0

@@ -12,6 +12,9 @@ means) and ``summary.json``.
 ``--uncertainty`` every record's numbers get the 95 % band of the pump's posterior draws
 (:func:`~cardiosoft.network.pump_uncertainty.pump_bands`).
 
+``--verify`` reruns the model at the reference preset and reports each record's difference
+from it (its numerical error estimate; ``summary.json``'s ``verification``).
+
 ``--steady`` runs beat after beat to the periodic steady state instead of the model's
 ``number_of_cardiac_cycles`` and reports the steady beat
 (:func:`cardiosoft.network.run.simulate`'s ``steady``).
@@ -42,7 +45,6 @@ _SCENE_ONLY = (
     ("add_effect", []),
     ("energy", False),
     ("compare_paper", False),
-    ("verify", False),
     ("uncertainty", False),
     ("explain", False),
 )
@@ -128,9 +130,11 @@ def simulate_model(args, console) -> int:
     blocks = block_metrics(net, beat)
     for flag in [] if pump is None else pump_flags(pump):
         console.flag(model.name, flag)
-    uncertainty = None
+    uncertainty = verification = None
     if getattr(args, "uncertainty", False):
         uncertainty = _bands(args, model, placement, steady, pump, blocks, console)
+    if getattr(args, "verify", False):
+        verification = _verification(args, model, placement, traces, steady, console)
     if not args.quiet:
         print(_table(model, beat))
         if blocks:
@@ -161,6 +165,7 @@ def simulate_model(args, console) -> int:
             },
             "blocks": blocks,
             "uncertainty": uncertainty,
+            "verification": verification,
             "period": net.period,
             "beats": sim.cycles if traces.beats is None else traces.beats,
             "steady": traces.steady,
@@ -213,6 +218,58 @@ def _bands(args, model, placement, steady, pump, blocks, console) -> dict:
             b = bands[placement.chamber][key]
             print(f"  pump {key}: {_or_dash(pump[key])} in [{_or_dash(b.low)}, {_or_dash(b.high)}]")
     return {"draws": draws, "failed_draws": failed, "holds": UNCERTAINTY}
+
+
+def _records(model, placement, traces) -> dict[str, dict]:
+    """Every block's record of the last beat (the placed pump's joined to its chamber's)."""
+    from cardiosoft.network.pump_in_model import placed_records
+
+    if placement is not None:
+        return placed_records(model, placement, traces)
+    return block_metrics(model.network, traces.last_beat(model.simulation.points_per_cycle))
+
+
+def _verification(args, model, placement, traces, steady, console) -> dict:
+    """``--verify`` (calculation verification, as a scene's ``cardiosoft.verify``): the model
+    run again at the "reference" preset (rtol 100 times tighter still if it ran there), each
+    record's numbers' difference from the rerun (run - reference: the run's numerical error
+    estimate); prints the largest. Returns ``summary.json``'s ``verification`` entry."""
+    from cardiosoft.network import simulate
+    from cardiosoft.solve import PRESETS
+
+    accuracy = args.accuracy or "default"
+    rtol = PRESETS["reference"]["rtol"] / (100.0 if accuracy == "reference" else 1.0)
+    console.say(f"verifying: rerunning at the reference preset (rtol {rtol:g}) ...")
+    start = time.perf_counter()
+    rerun = simulate(model, "reference", rtol=rtol, steady=steady)
+    seconds = time.perf_counter() - start
+    if not rerun.solved:
+        console.fail(model.name, "the verifying rerun at the reference preset failed")
+    ran, reference = _records(model, placement, traces), _records(model, placement, rerun)
+    out, worst = {}, (0.0, None)
+    for block, record in ran.items():
+        out[block] = {}
+        for key, x in record.items():
+            y = reference[block][key]
+            if x is None or y is None:
+                continue
+            relative = abs(x - y) / abs(y) if y else None
+            out[block][key] = {"run": x, "reference": y, "difference": x - y, "relative": relative}
+            if relative is not None and relative > worst[0]:
+                worst = (relative, f"{block}.{key}")
+    if not args.quiet:
+        print(
+            "calculation verification (ASME V&V 40): the difference from a rerun at rtol "
+            f"{rtol:g}: largest relative {worst[0]:.2e}" + (f" ({worst[1]})" if worst[1] else "")
+        )
+    return {
+        "rerun_rtol": rtol,
+        "rerun_seconds": seconds,
+        "rerun_solved": rerun.solved,
+        "largest_relative": worst[0],
+        "largest_at": worst[1],
+        "records": out,
+    }
 
 
 def _or_dash(value) -> str:
