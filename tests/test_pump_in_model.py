@@ -156,6 +156,11 @@ def test_uncertainty_in_a_model_needs_the_pump(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert "--uncertainty: with an svZeroDSolver model, only for the soft pump" in err
+    # the number of draws is checked before anything runs (exit 2, one line)
+    argv = ["--scene", str(model), "--pump-chamber", "LV", "--units", "mmHg", "--uncertainty"]
+    assert main([*argv, "--draws", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "draws = 1: allowed 2 to" in err
 
 
 @pytest.mark.slow

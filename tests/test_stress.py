@@ -402,6 +402,9 @@ def compiled_functions(batches) -> set:
         if isinstance(b, stress.LoopBatch):
             keys.add(("loop", scene.pumps, tuple(b.members()), len(b)))
             continue
+        if isinstance(b, stress.ModelBatch):  # the model written from the scene, its chamber
+            keys.add(("model", b.scene, b.chamber, len(b)))
+            continue
         if scene.static:
             keys.add(("static", len(b)))
             continue
@@ -415,8 +418,9 @@ def compiled_functions(batches) -> set:
 def test_quick_subset_compiles_one_function_per_scene_structure():
     quick = stress.plan(quick=True)
     keys = compiled_functions(quick)
-    dynamic = [k for k in keys if k[0] not in ("static", "loop")]
-    assert ("static", 24) in keys and len(keys) == 5
+    dynamic = [k for k in keys if k[0] not in ("static", "loop", "model")]
+    assert ("static", 24) in keys and len(keys) == 6
+    assert [k for k in keys if k[0] == "model"] == [("model", "heart", "lv", 2)]
     assert len(dynamic) == 2  # the bench, a Windkessel
     # the closed loops: the native heart and the two pumps of tah, one batch each
     loops = [b for b in quick if isinstance(b, stress.LoopBatch)]
@@ -433,8 +437,10 @@ def test_quick_subset_compiles_one_function_per_scene_structure():
 def test_full_suite_compiles_a_handful_of_functions():
     keys = compiled_functions(stress.plan(examples=1))
     loops = [k for k in keys if k[0] == "loop"]
-    assert len(keys) - len(loops) <= 12
+    models = [k for k in keys if k[0] == "model"]
+    assert len(keys) - len(loops) - len(models) <= 12
     assert len(loops) == len(LOOP_SCENE_NAMES)  # one program per closed-loop structure
+    assert len(models) == len(stress.MODEL_PLACES)  # one per model and chamber
 
 
 def test_closed_loop_group_is_the_issue_group():
@@ -593,3 +599,64 @@ def test_quick_suite_passes(tmp_path):
     assert [loops[f"closed_loop/heart/{b}bpm"]["status"] for b in (60, 180)] == ["passed"] * 2
     row = next(line.split() for line in proc.stdout.splitlines() if line.startswith("closed_loop"))
     assert row[1:2] == ["6"] and row[4] == "0", row  # cases, failed
+
+
+# --- the pump in an svZeroDSolver model (group models) ---------------------------------------
+ALLOWANCE = 1e-3
+"""A beat's energy allowance (J) for the records below."""
+
+
+def _model_records(**pump) -> dict:
+    good = dict(edv_ml=120.0, esv_ml=80.0, stroke_volume_ml=40.0, ejection_fraction=1 / 3,
+                peak_force_N=30.0, min_force_N=0.0, cable_work_J=0.25, stroke_work_J=0.249,
+                efficiency=0.996, min_pressure_mmHg=2.0, max_pressure_mmHg=110.0)  # fmt: skip
+    return {"lv": good | pump, "aorta": {"pressure_mean": 90.0, "flow_mean": 80.0}}
+
+
+def _model_problems(records, flags=(), solved=True) -> list[str]:
+    problems = stress.check_model_member(records, "lv", solved, True, list(flags), ALLOWANCE)
+    return [check for check, _ in problems]
+
+
+def test_a_good_model_member_passes():
+    assert _model_problems(_model_records()) == []
+
+
+@pytest.mark.parametrize(
+    "change, check",
+    [
+        (dict(stroke_work_J=0.25 - 2.5 * stress.BALANCE_TOL * ALLOWANCE), "energy"),
+        (dict(ejection_fraction=1.02), "physical"),
+        (dict(esv_ml=-1.0), "physical"),
+        (dict(min_force_N=-0.5), "physical"),
+        (dict(peak_force_N=float("nan")), "finite"),
+    ],
+)
+def test_a_model_member_off_its_physics_fails(change, check):
+    assert _model_problems(_model_records(**change)) == [check]
+
+
+def test_a_pushing_cable_the_pump_flags_is_not_a_failure():
+    records = _model_records(min_force_N=-0.5)
+    assert _model_problems(records, ["cable force down to -0.50 N: a cable that would push"]) == []
+    assert _model_problems(records, solved=False) == ["solve"]
+
+
+def test_the_energy_allowance_is_the_beats_open_ends_and_quadrature():
+    """A closed elliptic p-V loop and a straight, closed pull: the trapezoids' error alone
+    (their difference over every other sample, a third of it), which shrinks 4-fold when the
+    samples double (second order); an open loop adds max|p| |dV| (and moves the trapezoids'
+    last segment: under 1 % here)."""
+    import numpy as np
+
+    def loop(n, opening=0.0):
+        t = np.linspace(0.0, 2 * np.pi, n)
+        p, v = 1e4 * (1.0 + 0.5 * np.sin(t)), 1e-4 * (1.0 + 0.5 * np.cos(t))
+        v[-1] += opening
+        x = 0.01 * np.sin(t / 2) ** 2
+        return p, v, 30.0 * x, x
+
+    coarse, fine = stress.balance_allowance(*loop(101)), stress.balance_allowance(*loop(201))
+    assert 3.5 < coarse / fine < 4.5
+    opened = stress.balance_allowance(*loop(101, opening=1e-7))
+    assert opened - coarse == pytest.approx(1.5e4 * 1e-7, rel=1e-2)

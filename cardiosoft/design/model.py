@@ -150,29 +150,6 @@ def metric_names(model, placement) -> list[str]:
         return list(metric_values(placed_records(model, placement, stand_in)))
 
 
-def _designs(model, placement):
-    """``variants(omegas, shortenings)``: the model's network with the pump at each design (a
-    batch of networks for :func:`cardiosoft.network.run.simulate`), no recompile per value."""
-    import equinox as eqx
-    import jax
-
-    from cardiosoft.network.pump_in_model import pump_index
-
-    net = model.network
-    index = pump_index(net, placement)
-
-    def one(omega, shortening):
-        law = net.blocks[index].law
-        stroke = shortening * law.pump.cable_length(omega)
-        return eqx.tree_at(
-            lambda n: (n.blocks[index].law.omega, n.blocks[index].law.actuation.stroke),
-            net,
-            (omega, stroke),
-        )
-
-    return jax.vmap(one)
-
-
 def optimise_model(
     path,
     placement,
@@ -188,11 +165,10 @@ def optimise_model(
     value}``, :func:`metric_names`) to its value; ``free``: the design variables searched
     (the others stay the placement's). The module docstring says how. ``ValueError`` for an
     unknown metric or free variable, or a model the pump cannot go into."""
-    import jax.numpy as jnp
     from scipy.optimize import least_squares
 
     from cardiosoft.network import read, simulate
-    from cardiosoft.network.pump_in_model import placed_records
+    from cardiosoft.network.pump_in_model import placed_records, with_designs
     from cardiosoft.pump import Domain
 
     free = tuple(free)
@@ -215,7 +191,6 @@ def optimise_model(
     domain = Domain()
     boxes = {"omega": domain.omega, "shortening": domain.shortening}
     start = {"omega": placement.omega, "shortening": placement.shortening}
-    variants = _designs(model, placement)
     wanted = np.array(list(targets.values()))
     scale = TARGET_TOLERANCE * np.abs(wanted)
     clock = time.perf_counter()
@@ -236,10 +211,11 @@ def optimise_model(
             return
         batch = [design_of(u) for u in new]
         batch += [batch[-1]] * (len(free) + 1 - len(batch))  # one batch shape: one program
-        omegas = jnp.asarray([d["omega"] for d in batch])
-        shortenings = jnp.asarray([d["shortening"] for d in batch])
+        variants = with_designs(
+            model, placement, [d["omega"] for d in batch], [d["shortening"] for d in batch]
+        )
         began = time.perf_counter()
-        traces = simulate(model, accuracy, variants=variants(omegas, shortenings), steady=True)
+        traces = simulate(model, accuracy, variants=variants, steady=True)
         if timings["compile"] is None:
             timings["compile"] = time.perf_counter() - began
         for i, u in enumerate(new):

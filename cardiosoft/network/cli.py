@@ -101,6 +101,15 @@ def simulate_model(args, console) -> int:
         return fail(ValueError(f"--scene {args.scene}: {err.strerror or err}"))
     except ValueError as err:  # an unsupported model or option, a broken JSON file
         return fail(ValueError(f"--scene {args.scene}: {err}"))
+    posterior = None
+    if getattr(args, "uncertainty", False):  # its draws checked before anything runs
+        from cardiosoft.posterior import first_draws
+        from cardiosoft.pump import load_posterior
+
+        try:
+            posterior = first_draws(load_posterior(placement.surrogate), args.draws)
+        except (OSError, ValueError) as err:
+            return fail(ValueError(f"--uncertainty --draws {args.draws}: {err}"))
     sim, net = model.simulation, model.network
     steady = getattr(args, "steady", None) is not None
     beats = "beats to the periodic steady state" if steady else f"{sim.cycles} beats"
@@ -131,8 +140,8 @@ def simulate_model(args, console) -> int:
     for flag in [] if pump is None else pump_flags(pump):
         console.flag(model.name, flag)
     uncertainty = verification = None
-    if getattr(args, "uncertainty", False):
-        uncertainty = _bands(args, model, placement, steady, pump, blocks, console)
+    if posterior is not None:
+        uncertainty = _bands(args, model, placement, posterior, steady, pump, blocks, console)
     if getattr(args, "verify", False):
         verification = _verification(args, model, placement, traces, steady, console)
     if not args.quiet:
@@ -186,17 +195,14 @@ def simulate_model(args, console) -> int:
     return console.status()
 
 
-def _bands(args, model, placement, steady, pump, blocks, console) -> dict:
-    """``--uncertainty``: the posterior's first ``--draws`` draws of the pump in one call; each
-    number of the pump's record and of every block's gets ``KEY_band`` (the 95 % range) and
-    ``KEY_median``; failed draws flagged; prints the pump's. Returns ``summary.json``'s
-    ``uncertainty`` entry."""
+def _bands(args, model, placement, posterior, steady, pump, blocks, console) -> dict:
+    """``--uncertainty``: the ``posterior``'s draws (its first ``--draws``) of the pump in one
+    call; each number of the pump's record and of every block's gets ``KEY_band`` (the 95 %
+    range) and ``KEY_median``; failed draws flagged; prints the pump's. Returns
+    ``summary.json``'s ``uncertainty`` entry."""
     from cardiosoft.network.closed_loop_tools import UNCERTAINTY
     from cardiosoft.network.pump_uncertainty import pump_bands
-    from cardiosoft.posterior import first_draws
-    from cardiosoft.pump import load_posterior
 
-    posterior = first_draws(load_posterior(placement.surrogate), args.draws)
     console.say(f"uncertainty: {args.draws} posterior draws of the pump in one call ...")
     bands, failed, draws = pump_bands(
         model, placement, posterior, steady, args.accuracy or "default"

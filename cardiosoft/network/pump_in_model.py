@@ -214,6 +214,27 @@ def pump_index(network, placement: PumpPlacement) -> int:
     )
 
 
+def with_designs(model, placement: PumpPlacement, omegas, shortenings):
+    """The model's network once per design (``omegas``, ``shortenings``: arrays of Omega and
+    C), the placed pump's helix and stroke set to each (its pull's timing stays): a batch of
+    networks for :func:`cardiosoft.network.run.simulate`'s ``variants``, one program for any
+    designs."""
+    import jax
+
+    net, index = model.network, pump_index(model.network, placement)
+
+    def one(omega, shortening):
+        law = net.blocks[index].law
+        stroke = shortening * law.pump.cable_length(omega)
+        return eqx.tree_at(
+            lambda n: (n.blocks[index].law.omega, n.blocks[index].law.actuation.stroke),
+            net,
+            (omega, stroke),
+        )
+
+    return jax.vmap(one)(jnp.asarray(omegas, float), jnp.asarray(shortenings, float))
+
+
 def with_pump_draws(model, placement: PumpPlacement, pump):
     """The model's network once per draw of the ensemble surrogate ``pump`` (a posterior's,
     :func:`cardiosoft.pump.load_posterior`: its drawn leaves carry a leading axis), the

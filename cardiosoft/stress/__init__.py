@@ -43,6 +43,11 @@ corners, times the two column heads of a water-column scene):
   corners too (left at a corner, right at the one across the grid: left weak and right
   strong, and the reverse). Only this group runs the closed loops; ``--scene`` and ``--bpm``
   narrow it as they narrow the others.
+- ``models``: the soft pump in an svZeroDSolver model (:mod:`cardiosoft.stress.model_cases`):
+  ``heart`` written as one (``cardiosoft export --svzerod``), the pump in place of each
+  ventricle at the design corners, solved by the network to the periodic steady state; its
+  own checks (the solve, finite records, the pump's volumes, EF and force, and its energy
+  balance: the cables' work equals the stroke work over a beat).
 
 **Checks** (:func:`check_member`), for every case:
 
@@ -96,7 +101,9 @@ with its reason, not failing the run. The suite prints a progress line per batch
 numbers, as it should); 2 for bad input.
 
 **Where it lives.** :mod:`~cardiosoft.stress.cases` (what is run),
-:mod:`~cardiosoft.stress.loop_cases` (the closed loops'), :mod:`~cardiosoft.stress.draws`
+:mod:`~cardiosoft.stress.loop_cases` (the closed loops'),
+:mod:`~cardiosoft.stress.model_cases` (the pump in an svZeroDSolver model),
+:mod:`~cardiosoft.stress.draws`
 (hypothesis), :mod:`~cardiosoft.stress.checks` (what is checked, outcomes, known failures),
 :mod:`~cardiosoft.stress.runner` (a batch through the API and the command line),
 :mod:`~cardiosoft.stress.suite` (:func:`plan`, :func:`run_suite`),
@@ -147,11 +154,21 @@ from cardiosoft.stress.loop_cases import (
     loop_batches,
     quick_loop_batches,
 )
+from cardiosoft.stress.model_cases import (
+    BALANCE_TOL,
+    MODEL_PLACES,
+    ModelBatch,
+    ModelCase,
+    balance_allowance,
+    check_model_member,
+    model_batches,
+)
 from cardiosoft.stress.report import SuiteReport
 from cardiosoft.stress.suite import plan, run_suite
 
 __all__ = [
     "BALANCE_QUADRATURE",
+    "BALANCE_TOL",
     "ENERGY_TOLS",
     "GRID_AFTERLOADS_MMHG",
     "GRID_BPMS",
@@ -161,6 +178,7 @@ __all__ = [
     "KNOWN_FAILURES",
     "LONG_BEATS",
     "LOOP_BPMS",
+    "MODEL_PLACES",
     "PRELOADS_MMHG",
     "SHARP_SMOOTHING_MMHG",
     "VALVE_RESISTANCE_RANGE",
@@ -174,15 +192,20 @@ __all__ = [
     "LoopCase",
     "LoopView",
     "MemberView",
+    "ModelBatch",
+    "ModelCase",
     "Outcome",
     "SuiteReport",
+    "balance_allowance",
     "check_loop_member",
     "check_member",
+    "check_model_member",
     "grid_batches",
     "left_half_capacity",
     "long_batches",
     "loop_batches",
     "main",
+    "model_batches",
     "physical_problems",
     "plan",
     "preload_batches",

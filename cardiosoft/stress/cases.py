@@ -88,9 +88,11 @@ GROUPS = (
     "property",
     "cli",
     "closed_loop",
+    "models",
 )
 """The groups of cases; ``closed_loop`` runs the closed-loop scenes
-(:mod:`cardiosoft.stress.loop_cases`), the others the open ones."""
+(:mod:`cardiosoft.stress.loop_cases`), ``models`` the pump in a closed loop written as an
+svZeroDSolver model (:mod:`cardiosoft.stress.model_cases`), the others the open ones."""
 
 
 @dataclasses.dataclass(frozen=True)

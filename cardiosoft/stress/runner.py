@@ -34,6 +34,7 @@ from cardiosoft.stress.checks import (
     outcome,
 )
 from cardiosoft.stress.loop_cases import LoopBatch
+from cardiosoft.stress.model_cases import ModelBatch, balance_allowance, check_model_member
 from cardiosoft.units import RHO_WATER, G, mmHg
 
 __all__ = [
@@ -118,9 +119,11 @@ class Runner:
             )
         return self._static[key]
 
-    def run(self, batch: Batch | LoopBatch) -> list[Outcome]:
+    def run(self, batch: Batch | LoopBatch | ModelBatch) -> list[Outcome]:
         if isinstance(batch, LoopBatch):
             return self.run_loop(batch)
+        if isinstance(batch, ModelBatch):
+            return self.run_model(batch)
         cases = batch.cases()
         try:
             scene = batch.build_scene()
@@ -170,6 +173,48 @@ class Runner:
                 accuracy=scene.accuracy,
             )
             out.append(outcome(case, *check_member(view, self.domain)))
+        return out
+
+    def run_model(self, batch: ModelBatch) -> list[Outcome]:
+        """The pump's designs in a model, one batched call of the network's solve to the
+        periodic steady state (:mod:`cardiosoft.stress.model_cases`)."""
+        from cardiosoft.network import read, simulate
+        from cardiosoft.network.export import to_svzerod
+        from cardiosoft.network.pump_in_model import (
+            UNIT_SYSTEMS,
+            PumpPlacement,
+            placed_records,
+            pump_flags,
+            with_designs,
+        )
+        cases = batch.cases()
+        try:
+            config = to_svzerod(batch.build_scene(), units="mmHg", beats=3)
+            placement = PumpPlacement(batch.chamber, "mmHg")
+            model = read(config, pump=placement)
+            omegas, shortenings = zip(*batch.designs, strict=True)
+            variants = with_designs(model, placement, omegas, shortenings)
+            traces = simulate(model, variants=variants, steady=True)
+        except Exception as err:  # a batch that cannot run fails each of its cases, visibly
+            text = f"{type(err).__name__}: {err}".splitlines()[0][:300]
+            return [outcome(c, [("exception", text)], []) for c in cases]
+        out, name = [], batch.chamber
+        inlet = next(f"{u}:{d}" for u, d in model.network.nodes if d == name)
+        pressure_unit, volume_unit = UNIT_SYSTEMS["mmHg"][:2]
+        for i, case in enumerate(cases):
+            one = dataclasses.replace(traces, values={k: v[i] for k, v in traces.values.items()})
+            with np.errstate(all="ignore"):
+                records = placed_records(model, placement, one)
+            beat = one.last_beat(model.simulation.points_per_cycle).values
+            allowance = balance_allowance(
+                beat[f"pressure:{inlet}"] * pressure_unit, beat[f"Vc:{name}"] * volume_unit,
+                beat[f"cable_force:{name}"], beat[f"pull:{name}"],
+            )  # fmt: skip
+            flags = pump_flags(records[name])
+            problems = check_model_member(
+                records, name, traces.solved, bool(traces.steady), flags, allowance
+            )
+            out.append(outcome(case, problems, flags))
         return out
 
     def run_loop(self, batch: LoopBatch) -> list[Outcome]:

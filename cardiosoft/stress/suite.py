@@ -28,6 +28,7 @@ from cardiosoft.stress.cases import (
 from cardiosoft.stress.checks import STATUSES, Outcome
 from cardiosoft.stress.draws import property_batches
 from cardiosoft.stress.loop_cases import LOOP_BPMS, LoopBatch, loop_batches, quick_loop_batches
+from cardiosoft.stress.model_cases import ModelBatch, model_batches
 from cardiosoft.stress.report import SuiteReport
 from cardiosoft.stress.runner import Runner, energy_available
 
@@ -43,7 +44,7 @@ def plan(
     bpms: Sequence[float] | None = None,
     examples: int | None = None,
     seed: int = 14,
-) -> list[Batch | LoopBatch]:
+) -> list[Batch | LoopBatch | ModelBatch]:
     """The batches of a run, in order. ``quick``: the CI subset (one compile per scene
     structure, plus the command line's). The other arguments narrow the full suite; the
     closed-loop scenes (:data:`~cardiosoft.scene.LOOP_SCENE_NAMES`) run in group
@@ -58,11 +59,12 @@ def plan(
         if g not in GROUPS:
             raise ValueError(f"group = {g!r}: allowed {', '.join(GROUPS)}")
     loops = [s for s in scenes if s in LOOP_SCENE_NAMES] if "closed_loop" in groups else []
+    models = model_batches(scenes, quick) if "models" in groups else []
     scenes = [s for s in scenes if s in SCENE_NAMES]
     presets = list(ACCURACY_PRESETS if presets is None else presets)
     loop_bpms = [float(b) for b in (LOOP_BPMS if bpms is None else bpms)]
     bpms = [float(b) for b in (GRID_BPMS if bpms is None else bpms)]
-    out: list[Batch | LoopBatch] = []
+    out: list[Batch | LoopBatch | ModelBatch] = []
     if quick:
         # One compiled solve per scene structure (the bench, a Windkessel, the static strokes);
         # the command line only for the static scene: each dynamic one compiles its own solve.
@@ -91,7 +93,7 @@ def plan(
             out += property_batches(
                 dynamic_scenes(scenes), n, seed, skip_minimal=True, numbers=False, bpms=QUICK_BPMS
             )
-        return out + quick_loop_batches(loops)
+        return out + quick_loop_batches(loops) + models
     if "grid" in groups:
         out += grid_batches(
             scenes, presets, bpms, cli_at=("default", 60.0) if "cli" in groups else None
@@ -110,11 +112,11 @@ def plan(
         n = PROPERTY_EXAMPLES if examples is None else examples
         out += property_batches(scenes, n, seed, numbers=False)
         out += property_batches(scenes, n, seed)
-    return out + loop_batches(loops, loop_bpms)
+    return out + loop_batches(loops, loop_bpms) + models
 
 
 def run_suite(
-    batches: Sequence[Batch | LoopBatch], log: Callable[[str], None] = print
+    batches: Sequence[Batch | LoopBatch | ModelBatch], log: Callable[[str], None] = print
 ) -> SuiteReport:
     """Run ``batches`` (:func:`plan`), one progress line each; returns the report.
 
