@@ -295,3 +295,23 @@ def test_simulate_command_refuses_in_one_line(capsys, tmp_path, extra, message):
     assert main(["--scene", str(case), *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
+
+
+def test_simulate_in_float32_is_refused_naming_float64():
+    """Without JAX's 64-bit mode every result could only say it is unsolved (the nodes'
+    Newton stops at 1e-9 of each scale): refused at once, saying how to switch it on (in a
+    fresh process: this one runs in float64)."""
+    import subprocess
+    import sys
+
+    code = (
+        "from cardiosoft import network\n"
+        f"model = network.read({str(CASES / 'steadyFlow_R_R.json')!r})\n"
+        "try:\n"
+        "    network.simulate(model)\n"
+        "except ValueError as err:\n"
+        "    print(err)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "needs float64" in out.stdout and "jax_enable_x64" in out.stdout

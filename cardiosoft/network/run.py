@@ -166,6 +166,12 @@ def simulate(
     """
     if accuracy not in PRESETS:
         raise ValueError(f"accuracy {accuracy!r} is not one of {', '.join(PRESETS)}")
+    if not jax.config.jax_enable_x64:  # a float32 run could only ever report itself unsolved
+        raise ValueError(
+            "cardiosoft.network.simulate needs float64: the nodes' Newton stops at 1e-9 of "
+            "each scale, which float32 cannot reach; call "
+            "jax.config.update('jax_enable_x64', True) first"
+        )
     sim = model.simulation
     net = model.network if variants is None else variants
 
