@@ -112,7 +112,8 @@ class ModelBatch:
 
 def model_batches(scenes, quick: bool = False) -> list[ModelBatch]:
     """The group's batches for the shipped ``scenes`` named (those of :data:`MODEL_PLACES`);
-    ``quick``: the left ventricle at two opposite corners only."""
+    ``quick``: the left ventricle at two corners only, the strongest (Omega 6, C 0.65) and a
+    weak one whose stroke is nearly nothing (Omega 0.3, C 0.01)."""
     corners = tuple((o, c) for o in GRID_OMEGAS for c in GRID_SHORTENINGS)
     if quick:
         corners = ((GRID_OMEGAS[-1], GRID_SHORTENINGS[-1]), (GRID_OMEGAS[1], GRID_SHORTENINGS[0]))
