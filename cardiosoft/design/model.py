@@ -219,7 +219,7 @@ def optimise_model(
         if timings["compile"] is None:
             timings["compile"] = time.perf_counter() - began
         for i, u in enumerate(new):
-            one = dataclasses.replace(traces, values={k: v[i] for k, v in traces.values.items()})
+            one = traces.variant(i)
             with np.errstate(all="ignore"):
                 records = placed_records(model, placement, one)
             values = metric_values(records)

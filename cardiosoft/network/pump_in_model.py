@@ -143,6 +143,22 @@ def soft_pump(placement: PumpPlacement, ports, period: float, start_volume: floa
     return SoftPump(placement.chamber, tuple(ports), law, pressure_unit, volume_unit)
 
 
+def pump_beat(traces, placement: PumpPlacement, nodes) -> tuple[np.ndarray, ...]:
+    """The pump's samples in ``traces`` (one model's), SI whatever the model's units: its
+    pressure (Pa, at its inlet node; ``nodes``: the network's), volume (m^3), cable force (N)
+    and pull (m)."""
+    name = placement.chamber
+    pressure_unit, volume_unit = UNIT_SYSTEMS[placement.units][:2]
+    inlet = next(f"{up}:{down}" for up, down in nodes if down == name)
+    values = traces.values
+    return (
+        np.asarray(values[f"pressure:{inlet}"]) * pressure_unit,
+        np.asarray(values[f"Vc:{name}"]) * volume_unit,
+        np.asarray(values[f"cable_force:{name}"]),
+        np.asarray(values[f"pull:{name}"]),
+    )
+
+
 def pump_metrics(traces, placement: PumpPlacement, nodes) -> dict:
     """The pump's beat from ``traces`` (the reported samples, one whole beat): its end-diastolic
     and end-systolic volumes and stroke volume (ml), ejection fraction, peak cable force (N),
@@ -150,14 +166,9 @@ def pump_metrics(traces, placement: PumpPlacement, nodes) -> dict:
     cables' work over the beat (the closed integral of F dx, J), the stroke work (the
     pressure-volume loop's area, -(closed integral of p dV), J) and their ratio, the pump's
     efficiency (hydraulic work out over the cables' work in)."""
-    name = placement.chamber
-    pressure_unit, volume_unit = UNIT_SYSTEMS[placement.units][:2]
-    volume = np.asarray(traces.values[f"Vc:{name}"]) * volume_unit
-    force = np.asarray(traces.values[f"cable_force:{name}"])
-    inlet = next(f"{up}:{down}" for up, down in nodes if down == name)
-    pressure = np.asarray(traces.values[f"pressure:{inlet}"]) * pressure_unit
+    pressure, volume, force, pull = pump_beat(traces, placement, nodes)
     beat = chamber_record(volume / ml)
-    cable_work = closed_integral(force, traces.values[f"pull:{name}"])
+    cable_work = closed_integral(force, pull)
     stroke_work = -closed_integral(pressure, volume)
     return {
         "edv_ml": beat["edv"],

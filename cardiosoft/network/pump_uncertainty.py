@@ -3,8 +3,6 @@ draws solved in one batched call, and every record's numbers' 95 % band over the
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from cardiosoft.network.pump_in_model import PumpPlacement, placed_records, with_pump_draws
@@ -27,7 +25,7 @@ def pump_bands(
     n = next(iter(traces.values.values())).shape[0]
     per_draw = []
     for i in range(n):
-        one = dataclasses.replace(traces, values={k: v[i] for k, v in traces.values.items()})
+        one = traces.variant(i)
         with np.errstate(all="ignore"):
             per_draw.append(placed_records(model, placement, one))
     good = traces.solved and traces.steady is not False

@@ -66,6 +66,11 @@ class Traces:
         mean, :func:`~cardiosoft.network.block_metrics.time_mean`)."""
         return {k: np.mean(v, axis=-1) for k, v in self.values.items()}
 
+    def variant(self, i: int) -> Traces:
+        """Variant ``i`` of a batch (:func:`simulate`'s ``variants``) as one model's traces (the
+        flags stay the batch's)."""
+        return dataclasses.replace(self, values={k: v[i] for k, v in self.values.items()})
+
     def last_beat(self, points: int) -> Traces:
         """The last ``points`` samples (the model's points a beat: its last beat, whether or not
         every beat was output), time from 0."""

@@ -181,9 +181,9 @@ class Runner:
         from cardiosoft.network import read, simulate
         from cardiosoft.network.export import to_svzerod
         from cardiosoft.network.pump_in_model import (
-            UNIT_SYSTEMS,
             PumpPlacement,
             placed_records,
+            pump_beat,
             pump_flags,
             with_designs,
         )
@@ -199,17 +199,12 @@ class Runner:
             text = f"{type(err).__name__}: {err}".splitlines()[0][:300]
             return [outcome(c, [("exception", text)], []) for c in cases]
         out, name = [], batch.chamber
-        inlet = next(f"{u}:{d}" for u, d in model.network.nodes if d == name)
-        pressure_unit, volume_unit = UNIT_SYSTEMS["mmHg"][:2]
         for i, case in enumerate(cases):
-            one = dataclasses.replace(traces, values={k: v[i] for k, v in traces.values.items()})
+            one = traces.variant(i)
             with np.errstate(all="ignore"):
                 records = placed_records(model, placement, one)
-            beat = one.last_beat(model.simulation.points_per_cycle).values
-            allowance = balance_allowance(
-                beat[f"pressure:{inlet}"] * pressure_unit, beat[f"Vc:{name}"] * volume_unit,
-                beat[f"cable_force:{name}"], beat[f"pull:{name}"],
-            )  # fmt: skip
+            beat = one.last_beat(model.simulation.points_per_cycle)
+            allowance = balance_allowance(*pump_beat(beat, placement, model.network.nodes))
             flags = pump_flags(records[name])
             problems = check_model_member(
                 records, name, traces.solved, bool(traces.steady), flags, allowance
