@@ -9,7 +9,8 @@ solve itself takes about 30 ms). This script prints
 1. the wall time of N fresh ``python -m cardiosoft.simulate --bpm 60 --quiet`` processes (best
    and median) and its ratio to the 15 s target, each with a cold compile cache (an empty
    folder) and then a warm one (the folder the cold run filled; cardiosoft._cli), side by side;
-2. the import time of a fresh process (``import jax`` and ``cardiosoft``);
+2. the import time of a fresh process: ``import cardiosoft`` against issue #41's 0.8 s, and
+   the modules the solve needs (JAX, diffrax, the engine);
 3. JAX's own log of one run without the cache (``JAX_LOG_COMPILES``): tracing, lowering and
    XLA compilation per jitted function, largest first. The quasi-static strokes compile on a
    second thread while the dynamic solve traces and compiles, so the entries overlap and do not
@@ -31,6 +32,10 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 TARGET_S = 15.0
+IMPORT_TARGET_S = 0.8
+"""Issue #41's budget for ``import cardiosoft`` (s)."""
+SOLVE_IMPORTS = "import cardiosoft.experiment"
+"""What the main job imports before it solves (``cardiosoft.run`` and everything under it)."""
 MAIN_JOB = [sys.executable, "-m", "cardiosoft.simulate", "--bpm", "60", "--quiet"]
 LOG_LINE = re.compile(
     r"Finished (tracing|jaxpr to MLIR module conversion|XLA compilation) "
@@ -72,12 +77,16 @@ def main(argv=None) -> int:
     ratio = statistics.median(walls["warm"]) / statistics.median(walls["cold"])
     print(f"   warm / cold (medians): {ratio:.2f}")
 
-    imports = [
-        _wall([sys.executable, "-c", "import jax; import cardiosoft"]) for _ in range(args.repeat)
-    ]
+    package = [_wall([sys.executable, "-c", "import cardiosoft"]) for _ in range(args.repeat)]
     print(
-        f"2. imports (jax, diffrax, equinox, cardiosoft): best {min(imports):.1f} s "
-        f"= {min(imports) / best:.0%} of the best cold run"
+        f"2. imports: `import cardiosoft` best {min(package):.2f} s, best / target "
+        f"{min(package) / IMPORT_TARGET_S:.2f} (issue #41: {IMPORT_TARGET_S:g} s; its public "
+        "names load on first use)"
+    )
+    solve = [_wall([sys.executable, "-c", SOLVE_IMPORTS]) for _ in range(args.repeat)]
+    print(
+        f"   the solve's modules (jax, diffrax, equinox, cardiosoft.experiment): best "
+        f"{min(solve):.1f} s = {min(solve) / best:.0%} of the best cold run"
     )
 
     env = {**os.environ, "JAX_LOG_COMPILES": "1", "CARDIOSOFT_COMPILE_CACHE": "0"}

@@ -7,59 +7,92 @@ recommended (switch on JAX's 64-bit mode in your script, as the README shows) an
 CLIs, notebooks and tests use; the library never switches it on by itself, and no module builds
 a JAX array when it is imported, so the switch may come after ``import cardiosoft``.
 
-The command-line modules (``python -m cardiosoft.simulate``, ``python -m cardiosoft.geometry``)
-are not imported here, so that running one does not find it imported already.
+The public names below are imported on first use (PEP 562), so ``import cardiosoft`` costs
+no JAX import (about 1.5 s): a command can parse its options and refuse bad input before it
+imports what the solve needs (issue #41). The command-line modules (``python -m
+cardiosoft.simulate``, ``python -m cardiosoft.geometry``) are never imported here, so that
+running one does not find it imported already.
 """
 
 __version__ = "0.1.0"
 
-# --- the public API (re-exported; ``as`` marks each name as exported) -----------------------
-from cardiosoft import units as units
-from cardiosoft.batch import BeatSolution as BeatSolution
-from cardiosoft.batch import StaticSolution as StaticSolution
-from cardiosoft.batch import scene_circuit as scene_circuit
-from cardiosoft.batch import solve_orbit as solve_orbit
-from cardiosoft.batch import solve_static as solve_static
-from cardiosoft.experiment import run as run
-from cardiosoft.experiment import run_designs as run_designs
-from cardiosoft.geometry import Shell as Shell
-from cardiosoft.geometry import apex_motion as apex_motion
-from cardiosoft.geometry import cavity_volume as cavity_volume
-from cardiosoft.pump import PumpSurrogate as PumpSurrogate
-from cardiosoft.pump import load as load_pump
-from cardiosoft.results import RunResult as RunResult
-from cardiosoft.scene import load_scene as load_scene
-from cardiosoft.scene_tools import solve_beats as solve_beats
-from cardiosoft.scene_tools import summary_records as summary_records
-from cardiosoft.solve import SolverConfig as SolverConfig
-from cardiosoft.solve import preset as preset
-from cardiosoft.sweep import design_sweep as design_sweep
-from cardiosoft.verify import Verification as Verification
-from cardiosoft.verify import verify_run as verify_run
+import importlib
+from typing import TYPE_CHECKING
 
-# --- end of the public API --------------------------------------------------------------------
+# --- the public API: each name and the module that defines it, imported on first use --------
+PUBLIC = {
+    "BeatSolution": "cardiosoft.batch",
+    "StaticSolution": "cardiosoft.batch",
+    "scene_circuit": "cardiosoft.batch",
+    "solve_orbit": "cardiosoft.batch",
+    "solve_static": "cardiosoft.batch",
+    "run": "cardiosoft.experiment",
+    "run_designs": "cardiosoft.experiment",
+    "Shell": "cardiosoft.geometry",
+    "apex_motion": "cardiosoft.geometry",
+    "cavity_volume": "cardiosoft.geometry",
+    "PumpSurrogate": "cardiosoft.pump",
+    "load_pump": "cardiosoft.pump",  # pump.load
+    "RunResult": "cardiosoft.results",
+    "load_scene": "cardiosoft.scene",
+    "solve_beats": "cardiosoft.scene_tools",
+    "summary_records": "cardiosoft.scene_tools",
+    "SolverConfig": "cardiosoft.solve",
+    "preset": "cardiosoft.solve",
+    "design_sweep": "cardiosoft.sweep",
+    "Verification": "cardiosoft.verify",
+    "verify_run": "cardiosoft.verify",
+}
+"""Each public name and the module it is defined in."""
+RENAMED = {"load_pump": "load"}
+"""Public names spelled otherwise in their module."""
 
 __all__ = [
-    "BeatSolution",
-    "PumpSurrogate",
-    "RunResult",
-    "Shell",
-    "SolverConfig",
-    "StaticSolution",
-    "Verification",
-    "apex_motion",
-    "cavity_volume",
-    "design_sweep",
-    "load_pump",
-    "load_scene",
-    "preset",
-    "run",
-    "run_designs",
-    "scene_circuit",
-    "solve_beats",
-    "solve_orbit",
-    "solve_static",
-    "summary_records",
-    "units",
-    "verify_run",
-]
+    "BeatSolution", "PumpSurrogate", "RunResult", "Shell", "SolverConfig", "StaticSolution",
+    "Verification", "apex_motion", "cavity_volume", "design_sweep", "load_pump", "load_scene",
+    "preset", "run", "run_designs", "scene_circuit", "solve_beats", "solve_orbit",
+    "solve_static", "summary_records", "units", "verify_run",
+]  # fmt: skip
+
+if TYPE_CHECKING:  # what type checkers and IDEs read; at run time __getattr__ imports these
+    from cardiosoft import units as units
+    from cardiosoft.batch import BeatSolution as BeatSolution
+    from cardiosoft.batch import StaticSolution as StaticSolution
+    from cardiosoft.batch import scene_circuit as scene_circuit
+    from cardiosoft.batch import solve_orbit as solve_orbit
+    from cardiosoft.batch import solve_static as solve_static
+    from cardiosoft.experiment import run as run
+    from cardiosoft.experiment import run_designs as run_designs
+    from cardiosoft.geometry import Shell as Shell
+    from cardiosoft.geometry import apex_motion as apex_motion
+    from cardiosoft.geometry import cavity_volume as cavity_volume
+    from cardiosoft.pump import PumpSurrogate as PumpSurrogate
+    from cardiosoft.pump import load as load_pump
+    from cardiosoft.results import RunResult as RunResult
+    from cardiosoft.scene import load_scene as load_scene
+    from cardiosoft.scene_tools import solve_beats as solve_beats
+    from cardiosoft.scene_tools import summary_records as summary_records
+    from cardiosoft.solve import SolverConfig as SolverConfig
+    from cardiosoft.solve import preset as preset
+    from cardiosoft.sweep import design_sweep as design_sweep
+    from cardiosoft.verify import Verification as Verification
+    from cardiosoft.verify import verify_run as verify_run
+
+
+def __getattr__(name: str):
+    """A public name (imported from its module on first use, then kept) or a submodule."""
+    if name in PUBLIC:
+        value = getattr(importlib.import_module(PUBLIC[name]), RENAMED.get(name, name))
+    else:
+        try:
+            value = importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":  # the submodule exists; something it imports not
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

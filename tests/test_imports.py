@@ -214,6 +214,45 @@ def test_float64_can_be_switched_on_after_importing_every_module(tmp_path):
     assert got["loaded"] == ["float64"]
 
 
+IMPORT_PACKAGE = """
+import json, sys
+before = set(sys.modules)
+import cardiosoft
+print(json.dumps(sorted(set(sys.modules) - before)))
+"""
+
+
+def test_import_cardiosoft_imports_the_standard_library_only(tmp_path):
+    """Issue #41's import budget: ``import cardiosoft`` brings in no third-party package (JAX
+    alone is about 1.5 s of a command's start; the public names load on first use). The budget
+    is stated in modules, not seconds: ``benchmarks/startup.py`` times it against 0.8 s."""
+    out = subprocess.run(
+        [sys.executable, "-c", IMPORT_PACKAGE], capture_output=True, text=True, timeout=120,
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    loaded = {name.split(".")[0] for name in json.loads(out.stdout)}
+    outside = sorted(loaded - set(sys.stdlib_module_names) - {"cardiosoft"})
+    assert not outside, f"import cardiosoft imports {outside}"
+
+
+def test_public_names_load_on_first_use():
+    """Each name of ``cardiosoft.__all__`` is its module's object, loaded when first asked
+    for; a submodule is reachable as an attribute; anything else is an AttributeError."""
+    import cardiosoft
+    from cardiosoft import pump, solve
+
+    assert set(cardiosoft.__all__) == {*cardiosoft.PUBLIC, "units"}
+    for name in cardiosoft.__all__:
+        assert name in dir(cardiosoft)
+        assert getattr(cardiosoft, name) is not None, name
+    assert cardiosoft.load_pump is pump.load
+    assert cardiosoft.preset is solve.preset
+    assert cardiosoft.network.__name__ == "cardiosoft.network"
+    with pytest.raises(AttributeError, match="no attribute 'no_such_name'"):
+        cardiosoft.no_such_name  # noqa: B018
+
+
 @pytest.mark.parametrize(
     "module",
     [
