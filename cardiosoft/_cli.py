@@ -20,6 +20,9 @@ from cardiosoft.console import EXIT_BAD_INPUT
 
 CACHE_VARIABLE = "CARDIOSOFT_COMPILE_CACHE"
 """``0`` switches the compile cache off; a folder puts it there (:func:`use_compile_cache`)."""
+STORE_VARIABLE = "CARDIOSOFT_PROGRAM_STORE"
+"""``0`` switches the store of exported programs off (:mod:`cardiosoft.program_store`); it
+lives in the compile cache's folder and is off with it."""
 EXIT_STATUS = (
     "exit status: 0 when it did what was asked (flags: {flags}; they are printed as warnings "
     "and listed under 'flags' in {output}); 1 when {failure}; 2 for bad input (one line, "
@@ -168,7 +171,9 @@ def prepare_process(tool: str, argv) -> None:
     - sweep, in this process (not with ``--workers`` / ``--scheduler``, whose workers share the
       cores): as many XLA host devices as cores, so that each chunk is sharded over all of them
       (``benchmarks/sweep_throughput.py``, section 4).
-    - simulate, design and sweep: the compile cache (:func:`use_compile_cache`).
+    - simulate, design and sweep: the compile cache (:func:`use_compile_cache`), and in its
+      folder ``programs/`` the exported programs that spare a process the tracing
+      (:mod:`cardiosoft.program_store`; :data:`STORE_VARIABLE` switches them off).
 
     An ``XLA_FLAGS`` of the user's own is left as it is.
     """
@@ -181,7 +186,11 @@ def prepare_process(tool: str, argv) -> None:
             count = f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"
             os.environ["XLA_FLAGS"] = f"{flags} {count}".strip()
     if tool in ("simulate", "design", "sweep"):
-        use_compile_cache()  # the next process loads what this one compiles
+        from cardiosoft.program_store import use_program_store
+
+        folder = use_compile_cache()  # the next process loads what this one compiles
+        if folder is not None and os.environ.get(STORE_VARIABLE, "").strip() != "0":
+            use_program_store(folder / "programs")  # and what it traced
 
 
 def compile_cache_folder() -> Path | None:

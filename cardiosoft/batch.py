@@ -97,6 +97,7 @@ from cardiosoft.circuit import (
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
 from cardiosoft.metrics import beat_metrics, trapezoid
 from cardiosoft.network.bench import ENGINES, BenchNetwork
+from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
 from cardiosoft.shooting import orbit_beat, shoot_periodic
@@ -422,7 +423,8 @@ def solve_beats(
     batch, shared = members, pump
     if size is not None:
         batch, shared = flat_batch(members, pump, scene_draws or {}, size)
-    metrics, traces, out = _solve(
+    metrics, traces, out = stored_call(
+        _solve,
         structure,
         numbers,
         shared,
@@ -498,8 +500,8 @@ def solve_orbit(
         ) from None
     structure, numbers = split_scene(scene)
     batch = _shard({**members, "start": start})
-    metrics, traces, out = _solve(
-        structure, numbers, pump, batch, 1, 0.0, config, save, "orbit", energy, engine
+    metrics, traces, out = stored_call(
+        _solve, structure, numbers, pump, batch, 1, 0.0, config, save, "orbit", energy, engine
     )
     return _solution(scene, members, config, metrics, traces, out, True)
 
@@ -557,7 +559,8 @@ def solve_static(
     friction = jnp.asarray(friction if scene.has("cable_friction") else 0.0)
     args = (members["omega"], members["shortening"], members["afterload"])
     if size is None:
-        return StaticSolution(members, *static_strokes(pump, *args, k, friction, n_points))
+        strokes = stored_call(static_strokes, pump, *args, k, friction, n_points)
+        return StaticSolution(members, *strokes)
 
     def one(p, k, friction):
         return static_strokes(p, *args, k, friction, n_points)

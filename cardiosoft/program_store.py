@@ -1,0 +1,248 @@
+"""Programs that outlive a process (issue #41): a jitted solve is exported once with
+``jax.export`` (its traced StableHLO) and stored beside the compile cache, so that a later
+process deserialises it instead of tracing it. JAX's compile cache then gives the executable.
+
+A warm ``simulate --bpm 60`` spent about 2.7 s tracing the batch solve, which JAX redoes in
+every process; loading its stored program and the executable takes about 0.5 s
+(``benchmarks/startup.py``).
+
+- Only a command's own process stores programs (:func:`cardiosoft._cli.prepare_process` calls
+  :func:`use_program_store`, beside the compile cache); a library call, or a test calling a
+  command's ``main()`` in-process, traces as before. So does a process with several devices
+  (a sweep shards its chunks over them): the programs are exported for one.
+- The key (:func:`program_key`): the function, the static part of its arguments (the scene's
+  or network's structure, the solver preset, the save mode, ...), the tree, shapes and dtypes
+  of its array arguments (the batch shape, float64), the device, and the versions of
+  cardiosoft (a hash of its sources, so an edited checkout never loads an old program), jax,
+  jaxlib, diffrax and equinox. The surrogate's numbers are arguments of the program; its
+  structure is in the static part.
+- An entry (:data:`FORMAT`) is a header line (JSON: the format, the key, the digest of the
+  rest) and then the output's layout and the serialised program. A stale, foreign or corrupt
+  entry (another key, a digest that does not match, bytes that do not deserialise) is
+  rebuilt, never trusted: the call traces, exports and writes the entry anew.
+- What is exported is a function of the arguments' array leaves returning the output's array
+  leaves; the output's tree is stored as a layout of plain containers and equinox modules
+  whose fields are all arrays (:func:`output_layout`), rebuilt by their constructors. A
+  function whose output holds anything else is traced, not stored.
+- Gradients: the exported program is whatever the function traces, so a function that calls
+  ``jax.jacfwd`` (design's Jacobian) or differentiates through the orbit's implicit derivative
+  is stored the same way; its derivatives are part of the stored StableHLO, not taken of it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import importlib
+import json
+import os
+import sys
+import tempfile
+from importlib import metadata
+from pathlib import Path
+
+__all__ = ["FORMAT", "output_layout", "program_key", "stored_call", "use_program_store"]
+
+FORMAT = "cardiosoft-program-1"
+"""The entry format: the header's ``format``."""
+SUFFIX = ".jaxprogram"
+
+_state = {"folder": None, "loaded": {}}  # this process's store and its programs by key
+
+
+def use_program_store(folder: Path | None) -> None:
+    """Store and load this process's programs in ``folder`` (None: trace every program)."""
+    _state["folder"] = None if folder is None else Path(folder)
+    _state["loaded"] = {}
+
+
+@functools.cache
+def _versions() -> dict:
+    package = Path(__file__).resolve().parent
+    sources = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        sources.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes())
+    return {
+        "cardiosoft": sources.hexdigest(),
+        **{name: metadata.version(name) for name in ("jax", "jaxlib", "diffrax", "equinox")},
+        "python": sys.version.split()[0],
+    }
+
+
+def program_key(name: str, args: tuple) -> tuple[str, object, object, tuple]:
+    """The key of ``name`` called with ``args`` (module docstring), the arguments' static part,
+    their array leaves' tree and the leaves themselves."""
+    import equinox as eqx
+    import jax
+
+    dynamic, static = eqx.partition(args, eqx.is_array)
+    leaves, tree = jax.tree.flatten(dynamic)
+    described = {
+        "name": name,
+        "static": repr(static),
+        "tree": str(tree),
+        "leaves": [f"{leaf.dtype}{list(leaf.shape)}" for leaf in leaves],
+        "device": str(jax.devices()[0]),
+        "x64": bool(jax.config.jax_enable_x64),
+        "versions": _versions(),
+    }
+    key = hashlib.sha256(json.dumps(described, sort_keys=True).encode()).hexdigest()
+    return key, static, tree, tuple(leaves)
+
+
+def output_layout(tree):
+    """The output ``tree`` as a JSON-ready layout, or None where it holds something other than
+    plain containers, array leaves, None and equinox modules whose fields are those or (static
+    fields) classes."""
+    import equinox as eqx
+
+    if tree is None:
+        return {"none": True}
+    if eqx.is_array(tree):
+        return {"leaf": True}
+    if type(tree) in (tuple, list):  # not a NamedTuple: its own class rebuilds it
+        items = [output_layout(x) for x in tree]
+        return None if None in items else {type(tree).__name__: items}
+    if isinstance(tree, dict) and all(isinstance(k, str) for k in tree):
+        # in the keys' sorted order, as JAX flattens a dict (and a jitted function returns it)
+        items = [[k, output_layout(tree[k])] for k in sorted(tree)]
+        return None if any(x is None for _, x in items) else {"dict": items}
+    if isinstance(tree, type):  # a static field's class (diffrax's RESULTS of a result code)
+        return {"type": _path(tree)}
+    if isinstance(tree, eqx.Module) and dataclasses.is_dataclass(tree):
+        fields = {}
+        for field in dataclasses.fields(tree):
+            value = getattr(tree, field.name)
+            if field.metadata.get("static") and not isinstance(value, type):
+                return None
+            fields[field.name] = output_layout(value)
+        if None in fields.values():
+            return None
+        return {"module": _path(type(tree)), "fields": fields}
+    return None
+
+
+def _path(cls: type) -> str:
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _imported(path: str):
+    module, qualname = path.split(":")
+    value = importlib.import_module(module)
+    for part in qualname.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def _rebuild(layout, leaves):
+    """The output from its ``layout`` and an iterator of its array ``leaves``."""
+    if "none" in layout:
+        return None
+    if "leaf" in layout:
+        return next(leaves)
+    if "tuple" in layout or "list" in layout:
+        kind = tuple if "tuple" in layout else list
+        return kind(_rebuild(x, leaves) for x in layout[kind.__name__])
+    if "dict" in layout:
+        return {k: _rebuild(x, leaves) for k, x in layout["dict"]}
+    if "type" in layout:
+        return _imported(layout["type"])
+    fields = {k: _rebuild(v, leaves) for k, v in layout["fields"].items()}
+    return _imported(layout["module"])(**fields)
+
+
+def _read(path: Path, key: str):
+    """The entry at ``path`` as (layout, program), or None when it is missing, foreign, stale
+    or corrupt."""
+    from jax import export
+
+    try:
+        raw = path.read_bytes()
+        head, _, body = raw.partition(b"\n")
+        header = json.loads(head)
+        if header.get("format") != FORMAT or header.get("key") != key:
+            return None
+        if hashlib.sha256(body).hexdigest() != header.get("digest"):
+            return None
+        size = header["layout_bytes"]
+        layout = json.loads(body[:size])
+        return layout, export.deserialize(bytearray(body[size:]))
+    except Exception:  # any unreadable entry is rebuilt, never trusted
+        return None
+
+
+def _write(path: Path, key: str, layout, program: bytes) -> None:
+    """Write the entry atomically: a concurrent reader sees the old entry or the new one."""
+    text = json.dumps(layout).encode()
+    body = text + program
+    header = {
+        "format": FORMAT, "key": key, "digest": hashlib.sha256(body).hexdigest(),
+        "layout_bytes": len(text),
+    }  # fmt: skip
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(json.dumps(header).encode() + b"\n" + body)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _export(fn, static, tree, leaves):
+    """Trace ``fn`` once as a function of the array ``leaves``: (layout, exported program), or
+    None when its output cannot be stored."""
+    import equinox as eqx
+    import jax
+    from jax import export
+
+    box = {}
+
+    def flat(*leaves):
+        out = fn(*eqx.combine(jax.tree.unflatten(tree, leaves), static))
+        box["layout"] = output_layout(out)
+        return jax.tree.leaves(out)
+
+    shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
+    try:
+        program = export.export(jax.jit(flat))(*shapes)
+    except NotImplementedError:  # host callbacks (EQX_ON_ERROR=raise of the user's) do not export
+        return None
+    return (box["layout"], program) if box["layout"] is not None else None
+
+
+def stored_call(jitted, *args):
+    """``jitted(*args)`` (an ``eqx.filter_jit`` function), through its stored program when
+    this process keeps a store (:func:`use_program_store`)."""
+    folder = _state["folder"]
+    if folder is None:
+        return jitted(*args)
+    import jax
+
+    if jax.device_count() > 1:  # a batch sharded over devices (a sweep): traced, as before
+        return jitted(*args)
+    fn = jitted.__wrapped__
+    key, static, tree, leaves = program_key(f"{fn.__module__}.{fn.__qualname__}", args)
+    entry = _state["loaded"].get(key)
+    if entry is None:
+        path = folder / f"{key}{SUFFIX}"
+        entry = _read(path, key)
+        if entry is None:
+            entry = _export(fn, static, tree, leaves)
+            if entry is None:
+                return jitted(*args)
+            try:
+                _write(path, key, entry[0], entry[1].serialize())
+            except OSError as err:  # a store that cannot be written: this run goes on
+                print(f"warning: program store {folder}: {err}", file=sys.stderr)
+        layout, program = entry
+
+        def call(*leaves):
+            return program.call(*leaves)
+
+        call.__name__ = call.__qualname__ = fn.__name__  # JAX's log and compile cache name it
+        entry = _state["loaded"][key] = (layout, jax.jit(call))
+    layout, call = entry
+    return _rebuild(layout, iter(call(*leaves)))
