@@ -16,8 +16,9 @@ running one does not find it imported already.
 
 __version__ = "0.1.0"
 
-import importlib
 from typing import TYPE_CHECKING
+
+from cardiosoft.lazy import on_first_use
 
 # --- the public API: each name and the module that defines it, imported on first use --------
 PUBLIC = {
@@ -78,21 +79,4 @@ if TYPE_CHECKING:  # what type checkers and IDEs read; at run time __getattr__ i
     from cardiosoft.verify import Verification as Verification
     from cardiosoft.verify import verify_run as verify_run
 
-
-def __getattr__(name: str):
-    """A public name (imported from its module on first use, then kept) or a submodule."""
-    if name in PUBLIC:
-        value = getattr(importlib.import_module(PUBLIC[name]), RENAMED.get(name, name))
-    else:
-        try:
-            value = importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as e:
-            if e.name != f"{__name__}.{name}":  # the submodule exists; something it imports not
-                raise
-            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = on_first_use(globals(), PUBLIC, RENAMED)

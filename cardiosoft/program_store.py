@@ -42,7 +42,10 @@ import tempfile
 from importlib import metadata
 from pathlib import Path
 
-__all__ = ["FORMAT", "output_layout", "program_key", "stored_call", "use_program_store"]
+__all__ = [
+    "FORMAT", "StoredLowering", "output_layout", "program_key", "stored_call", "stored_lowering",
+    "use_program_store",
+]  # fmt: skip
 
 FORMAT = "cardiosoft-program-1"
 """The entry format: the header's ``format``."""
@@ -70,17 +73,25 @@ def _versions() -> dict:
     }
 
 
-def program_key(name: str, args: tuple) -> tuple[str, object, object, tuple]:
-    """The key of ``name`` called with ``args`` (module docstring), the arguments' static part,
-    their array leaves' tree and the leaves themselves."""
+def _is_leaf_value(x) -> bool:
     import equinox as eqx
     import jax
 
-    dynamic, static = eqx.partition(args, eqx.is_array)
+    return eqx.is_array(x) or isinstance(x, jax.ShapeDtypeStruct)
+
+
+def program_key(name: str, args: tuple, keywords: dict) -> tuple[str, object, object, tuple]:
+    """The key of ``name`` called with ``args`` and the static ``keywords`` (module docstring),
+    the arguments' static part, their array leaves' tree and the leaves themselves (arrays or
+    ``jax.ShapeDtypeStruct``)."""
+    import equinox as eqx
+    import jax
+
+    dynamic, static = eqx.partition(args, _is_leaf_value)
     leaves, tree = jax.tree.flatten(dynamic)
     described = {
         "name": name,
-        "static": repr(static),
+        "static": repr((static, sorted(keywords.items()))),
         "tree": str(tree),
         "leaves": [f"{leaf.dtype}{list(leaf.shape)}" for leaf in leaves],
         "device": str(jax.devices()[0]),
@@ -191,7 +202,7 @@ def _write(path: Path, key: str, layout, program: bytes) -> None:
         raise
 
 
-def _export(fn, static, tree, leaves):
+def _export(fn, keywords, static, tree, leaves):
     """Trace ``fn`` once as a function of the array ``leaves``: (layout, exported program), or
     None when its output cannot be stored."""
     import equinox as eqx
@@ -201,7 +212,7 @@ def _export(fn, static, tree, leaves):
     box = {}
 
     def flat(*leaves):
-        out = fn(*eqx.combine(jax.tree.unflatten(tree, leaves), static))
+        out = fn(*eqx.combine(jax.tree.unflatten(tree, leaves), static), **keywords)
         box["layout"] = output_layout(out)
         return jax.tree.leaves(out)
 
@@ -213,36 +224,77 @@ def _export(fn, static, tree, leaves):
     return (box["layout"], program) if box["layout"] is not None else None
 
 
-def stored_call(jitted, *args):
-    """``jitted(*args)`` (an ``eqx.filter_jit`` function), through its stored program when
-    this process keeps a store (:func:`use_program_store`)."""
+@dataclasses.dataclass(frozen=True)
+class StoredLowering:
+    """A stored program lowered for its arguments' shapes, as ``jax.jit(fn).lower(...)`` is:
+    :meth:`compile` (XLA's work, which a thread may do) gives a function of the same
+    arguments returning the same tree; :attr:`out_info` is that tree's shapes and dtypes."""
+
+    layout: dict
+    lowered: object
+    out_info: object
+
+    def compile(self):
+        import equinox as eqx
+        import jax
+
+        compiled = self.lowered.compile()
+
+        def call(*args):
+            leaves = jax.tree.leaves(eqx.filter(args, _is_leaf_value))
+            return _rebuild(self.layout, iter(compiled(*leaves)))
+
+        return call
+
+
+def stored_lowering(fn, *args, **keywords) -> StoredLowering | None:
+    """``fn`` lowered for ``args`` (arrays, or ``jax.ShapeDtypeStruct`` leaves, and static
+    values) and the static ``keywords``, from its stored program, exported and stored first
+    when there is none; None when this process keeps no store (:func:`use_program_store`)
+    or the program cannot be stored: the caller then traces ``fn`` itself."""
     folder = _state["folder"]
     if folder is None:
-        return jitted(*args)
+        return None
     import jax
 
     if jax.device_count() > 1:  # a batch sharded over devices (a sweep): traced, as before
+        return None
+    name = f"{fn.__module__}.{fn.__qualname__}"
+    key, static, tree, leaves = program_key(name, args, keywords)
+    path = folder / f"{key}{SUFFIX}"
+    entry = _read(path, key)
+    if entry is None:
+        entry = _export(fn, keywords, static, tree, leaves)
+        if entry is None:
+            return None
+        try:
+            _write(path, key, entry[0], entry[1].serialize())
+        except OSError as err:  # a store that cannot be written: this run goes on
+            print(f"warning: program store {folder}: {err}", file=sys.stderr)
+    layout, program = entry
+
+    def call(*leaves):
+        return program.call(*leaves)
+
+    call.__name__ = call.__qualname__ = fn.__name__  # JAX's log and compile cache name it
+    shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
+    out_avals = (jax.ShapeDtypeStruct(a.shape, a.dtype) for a in program.out_avals)
+    out_info = _rebuild(layout, out_avals)
+    return StoredLowering(layout, jax.jit(call).lower(*shapes), out_info)
+
+
+def stored_call(jitted, *args):
+    """``jitted(*args)`` (an ``eqx.filter_jit`` function), through its stored program when
+    this process keeps a store (:func:`stored_lowering`); compiled once a process."""
+    import jax
+
+    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(args))
+    if _state["folder"] is None or traced:  # no store, or inside another trace (design's)
         return jitted(*args)
     fn = jitted.__wrapped__
-    key, static, tree, leaves = program_key(f"{fn.__module__}.{fn.__qualname__}", args)
-    entry = _state["loaded"].get(key)
-    if entry is None:
-        path = folder / f"{key}{SUFFIX}"
-        entry = _read(path, key)
-        if entry is None:
-            entry = _export(fn, static, tree, leaves)
-            if entry is None:
-                return jitted(*args)
-            try:
-                _write(path, key, entry[0], entry[1].serialize())
-            except OSError as err:  # a store that cannot be written: this run goes on
-                print(f"warning: program store {folder}: {err}", file=sys.stderr)
-        layout, program = entry
-
-        def call(*leaves):
-            return program.call(*leaves)
-
-        call.__name__ = call.__qualname__ = fn.__name__  # JAX's log and compile cache name it
-        entry = _state["loaded"][key] = (layout, jax.jit(call))
-    layout, call = entry
-    return _rebuild(layout, iter(call(*leaves)))
+    key = program_key(f"{fn.__module__}.{fn.__qualname__}", args, {})[0]
+    if key not in _state["loaded"]:
+        lowering = stored_lowering(fn, *args)
+        _state["loaded"][key] = None if lowering is None else lowering.compile()
+    call = _state["loaded"][key]
+    return jitted(*args) if call is None else call(*args)

@@ -236,6 +236,20 @@ def test_import_cardiosoft_imports_the_standard_library_only(tmp_path):
     assert not outside, f"import cardiosoft imports {outside}"
 
 
+def test_a_scene_loads_without_the_svzerodsolver_reader(tmp_path):
+    """``cardiosoft.network``'s public names load on first use too: the main job's scene
+    modules use the package's blocks, not its svZeroDSolver reader and runner."""
+    code = "import sys, cardiosoft.scene; print(sorted(m for m in sys.modules if 'network' in m))"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=tmp_path
+    )
+    assert out.returncode == 0, out.stderr
+    loaded = out.stdout
+    assert "cardiosoft.network'" in loaded  # the package itself is imported...
+    for reader in ("cardiosoft.network.svzerod", "cardiosoft.network.run"):
+        assert reader not in loaded, f"import cardiosoft.scene imports {reader}"
+
+
 def test_public_names_load_on_first_use():
     """Each name of ``cardiosoft.__all__`` is its module's object, loaded when first asked
     for; a submodule is reachable as an attribute; anything else is an AttributeError."""
@@ -249,6 +263,7 @@ def test_public_names_load_on_first_use():
     assert cardiosoft.load_pump is pump.load
     assert cardiosoft.preset is solve.preset
     assert cardiosoft.network.__name__ == "cardiosoft.network"
+    assert cardiosoft.network.read is cardiosoft.network.svzerod.read
     with pytest.raises(AttributeError, match="no attribute 'no_such_name'"):
         cardiosoft.no_such_name  # noqa: B018
 

@@ -101,38 +101,65 @@ def test_without_a_store_the_function_is_traced_as_usual():
     assert TRACED == [5.0]
 
 
-@pytest.mark.slow
-def test_the_main_job_loads_its_program_and_answers_as_the_traced_one(tmp_path):
-    """``simulate --bpm 60`` from fresh processes: traced without a store, then exporting into
-    an empty store, then loading from it. Their summaries and traces agree to round-off (the
-    same StableHLO, compiled alike: 1e-12 relative is many times float64's rounding of a
-    beat, far below any solver tolerance)."""
+def _fresh(tmp_path, name: str, cache: str, command: list[str]) -> Path:
+    """``python -m cardiosoft.<command> --out tmp_path/name`` in a fresh process with the
+    compile cache (and its program store) in ``cache`` ("0": none)."""
+    out = tmp_path / name
+    subprocess.run(
+        [sys.executable, "-m", *command, "--quiet", "--no-plot", "--out", str(out)],
+        cwd=tmp_path, env={**os.environ, "CARDIOSOFT_COMPILE_CACHE": cache}, check=True,
+        capture_output=True, timeout=600,
+    )  # fmt: skip
+    return out
 
-    def run(name, cache):
-        env = {**os.environ, "CARDIOSOFT_COMPILE_CACHE": cache}
-        out = tmp_path / name
-        subprocess.run(
-            [sys.executable, "-m", "cardiosoft.simulate", "--bpm", "60", "--quiet", "--no-plot",
-             "--out", str(out)],
-            cwd=tmp_path, env=env, check=True, capture_output=True, timeout=600,
-        )  # fmt: skip
-        summary = json.loads((out / "summary.json").read_text())
-        traces = np.genfromtxt(out / "traces.csv", delimiter=",", names=True)
-        return summary, traces
 
+def _stored_runs(tmp_path, command: list[str], programs: int) -> tuple[Path, list[Path]]:
+    """The output of ``command`` traced without a store, then exporting into an empty store
+    (``programs`` entries), then loading from it."""
     cache = str(tmp_path / "cache")
-    traced, traced_traces = run("traced", "0")
-    runs = [run("exported", cache)]
-    assert len(list((tmp_path / "cache" / "programs").glob("*.jaxprogram"))) == 1
-    runs.append(run("loaded", cache))
-    for summary, traces in runs:
-        for want, got in zip(traced["records"], summary["records"], strict=True):
-            for key, value in want.items():
+    traced = _fresh(tmp_path, "traced", "0", command)
+    runs = [_fresh(tmp_path, "exported", cache, command)]
+    assert len(list((tmp_path / "cache" / "programs").glob("*.jaxprogram"))) == programs
+    runs.append(_fresh(tmp_path, "loaded", cache, command))
+    return traced, runs
+
+
+@pytest.mark.slow
+def test_the_main_job_loads_its_programs_and_answers_as_the_traced_ones(tmp_path):
+    """``simulate --bpm 60`` (the batch solve and the quasi-static strokes) from fresh
+    processes. Summaries and traces agree to round-off: the same StableHLO, compiled alike;
+    1e-12 relative is many times float64's rounding of a beat, far below any solver
+    tolerance."""
+    traced, runs = _stored_runs(tmp_path, ["cardiosoft.simulate", "--bpm", "60"], programs=2)
+    want = json.loads((traced / "summary.json").read_text())
+    want_traces = np.genfromtxt(traced / "traces.csv", delimiter=",", names=True)
+    for out in runs:
+        summary = json.loads((out / "summary.json").read_text())
+        for expected, got in zip(want["records"], summary["records"], strict=True):
+            for key, value in expected.items():
                 if isinstance(value, float):
                     assert got[key] == pytest.approx(value, rel=1e-12, abs=1e-12), key
         # traces.csv holds 8 significant digits: round-off may move the last one
-        assert traces.dtype.names == traced_traces.dtype.names
+        traces = np.genfromtxt(out / "traces.csv", delimiter=",", names=True)
+        assert traces.dtype.names == want_traces.dtype.names
         for name in traces.dtype.names:
-            want = traced_traces[name]
-            atol = 1e-7 * np.nanmax(np.abs(want), initial=0.0)
-            np.testing.assert_allclose(traces[name], want, rtol=1e-7, atol=atol, err_msg=name)
+            column = want_traces[name]
+            atol = 1e-7 * np.nanmax(np.abs(column), initial=0.0)
+            np.testing.assert_allclose(traces[name], column, rtol=1e-7, atol=atol, err_msg=name)
+
+
+@pytest.mark.slow
+def test_a_design_loads_its_programs_and_answers_as_the_traced_one(tmp_path):
+    """The README's design question: the search's two programs (the orbits and their
+    implicit derivatives) and the verifying run's come from the store. The same programs give
+    the same search: the design and its SVs agree to 1e-9 relative (round-off carried through
+    a few dozen least-squares steps)."""
+    question = ["--target-sv", "70", "--afterload", "90", "--bpm", "60"]
+    traced, runs = _stored_runs(tmp_path, ["cardiosoft.design", *question], programs=4)
+    want = json.loads((traced / "design.json").read_text())
+    for out in runs:
+        got = json.loads((out / "design.json").read_text())
+        for key in ("omega", "shortening"):
+            assert got[key] == pytest.approx(want[key], rel=1e-9), key
+        for expected, target in zip(want["targets"], got["targets"], strict=True):
+            assert target["sv_ml"] == pytest.approx(expected["sv_ml"], rel=1e-9)

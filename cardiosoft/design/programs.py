@@ -24,6 +24,7 @@ import numpy as np
 
 from cardiosoft.batch import default_config, solve_beats, solve_orbit, split_scene
 from cardiosoft.design.problem import FRACTIONS, Problem
+from cardiosoft.program_store import stored_lowering
 from cardiosoft.solve import PRESETS
 from cardiosoft.units import ml, mmHg
 
@@ -210,10 +211,16 @@ class Evaluator:
             return
         start = time.perf_counter()
         static = dict(structure=self.structure, space=self.space)
-        orbits = PERIODIC_ORBITS.lower(*args, **static, steady=self.steady)
+        # a command's process loads the programs it stored before (cardiosoft.program_store)
+        orbits = stored_lowering(
+            periodic_orbits, *args, **static, steady=self.steady
+        ) or PERIODIC_ORBITS.lower(*args, **static, steady=self.steady)
         compiling = [COMPILER.submit(orbits.compile)]
         starts = orbits.out_info[2]  # the shapes of the orbit starts
-        compiling.append(COMPILER.submit(ORBIT_DERIVATIVES.lower(*args, starts, **static).compile))
+        derivatives = stored_lowering(
+            orbit_derivatives, *args, starts, **static
+        ) or ORBIT_DERIVATIVES.lower(*args, starts, **static)
+        compiling.append(COMPILER.submit(derivatives.compile))
         self._pending[key] = (start, compiling)
         self.trace_s += time.perf_counter() - start
 

@@ -42,6 +42,7 @@ from cardiosoft.ensemble import ensemble_size, flat_batch, unflatten
 from cardiosoft.metrics import trapezoid
 from cardiosoft.network.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
+from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.shooting import shoot_periodic
 from cardiosoft.solve import SolverConfig, periodic_beats, preset
@@ -345,7 +346,8 @@ def solve_loop(
         batch, shared = flat_batch(members, pump, {}, size)
 
     def solve(batch, config):
-        return _solve(
+        return stored_call(
+            _solve,
             structure,
             numbers,
             shared,
