@@ -562,9 +562,17 @@ def solve_static(
         strokes = stored_call(static_strokes, pump, *args, k, friction, n_points)
         return StaticSolution(members, *strokes)
 
+    k, friction = (jnp.broadcast_to(v, (size,)) for v in (k, friction))
+    strokes = stored_call(_ensemble_strokes, pump, ensemble_axes(pump), args, k, friction, n_points)
+    return StaticSolution(members, *strokes)
+
+
+@eqx.filter_jit
+def _ensemble_strokes(pump, axes, args, k, friction, n_points: int):
+    """:func:`static_strokes` of each draw of an ensemble ``pump`` (``axes``: its leaves' draw
+    axes), one compiled program (a command stores it: :mod:`cardiosoft.program_store`)."""
+
     def one(p, k, friction):
         return static_strokes(p, *args, k, friction, n_points)
 
-    k, friction = (jnp.broadcast_to(v, (size,)) for v in (k, friction))
-    axes = ensemble_axes(pump)
-    return StaticSolution(members, *jax.vmap(one, in_axes=(axes, 0, 0))(pump, k, friction))
+    return jax.vmap(one, in_axes=(axes, 0, 0))(pump, k, friction)
