@@ -1,22 +1,25 @@
-"""Where the main job's time goes: ``python -m cardiosoft.simulate --bpm 60`` from a fresh process.
+"""Where a command's time goes from a fresh process (issue #41): the main job
+(``python -m cardiosoft.simulate --bpm 60``), ``--uncertainty``, and a design question per
+shipped scene.
 
-    python benchmarks/startup.py [--repeat N]     # about 1 minute on 2 CPU cores
+    python benchmarks/startup.py [--repeat N]                  # the main job: about 2 minutes
+    python benchmarks/startup.py --commands main uncertainty design-bench design-lv \
+        design-rv design-tah --repeat 1                        # about 25 minutes on 2 cores
 
-Issue #4 asks for the main job, compile included, in under 15 s on a 2-core CPU. Nearly all of
-it is start-up: importing JAX and diffrax, tracing and compiling the one vmapped solve (the
-solve itself takes about 30 ms). This script prints
+The solve itself takes about 30 ms; the rest of a command is start-up: importing JAX and
+diffrax, tracing and compiling its programs. This script prints
 
-1. the wall time of N fresh ``python -m cardiosoft.simulate --bpm 60 --quiet`` processes (best
-   and median) and its ratio to the 15 s target, each with a cold compile cache (an empty
-   folder), then a warm one (the folder the cold run filled; cardiosoft._cli) with the
-   programs traced again (``CARDIOSOFT_PROGRAM_STORE=0``) and with them loaded from the store
-   (cardiosoft.program_store), side by side;
+1. per command (:data:`COMMANDS`), the wall time of N fresh processes (best and median) with a
+   cold compile cache (an empty folder), then a warm one (the folder the cold run filled;
+   cardiosoft._cli) with the programs loaded from the store (cardiosoft.program_store), and a
+   warm one with the programs traced in each process (``CARDIOSOFT_PROGRAM_STORE=0``, issue
+   #41's "before"), with the ratios to each other and to the issue's targets;
 2. the import time of a fresh process: ``import cardiosoft`` against issue #41's 0.8 s, and
    the modules the solve needs (JAX, diffrax, the engine);
-3. JAX's own log of one run without the cache (``JAX_LOG_COMPILES``): tracing, lowering and
-   XLA compilation per jitted function, largest first. The quasi-static strokes compile on a
-   second thread while the dynamic solve traces and compiles, so the entries overlap and do not
-   add up to the wall time.
+3. JAX's own log of the main job without the cache (``JAX_LOG_COMPILES``): tracing, lowering
+   and XLA compilation per jitted function, largest first. The quasi-static strokes compile on
+   a second thread while the dynamic solve traces and compiles, so the entries overlap and do
+   not add up to the wall time.
 """
 
 from __future__ import annotations
@@ -33,14 +36,25 @@ from collections import defaultdict
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
-TARGET_S = 15.0
-WARM_TARGET_S, COLD_TARGET_S = 1.5, 4.0
-"""Issue #41's targets for the main job from a fresh process, warm and cold cache (s)."""
 IMPORT_TARGET_S = 0.8
 """Issue #41's budget for ``import cardiosoft`` (s)."""
 SOLVE_IMPORTS = "import cardiosoft.experiment"
 """What the main job imports before it solves (``cardiosoft.run`` and everything under it)."""
 MAIN_JOB = [sys.executable, "-m", "cardiosoft.simulate", "--bpm", "60", "--quiet"]
+DESIGN = ["cardiosoft.design", "--target-sv"]
+COMMANDS = {
+    "main": (["cardiosoft.simulate", "--bpm", "60"], 1.5, 4.0),
+    "uncertainty": (["cardiosoft.simulate", "--bpm", "60", "--uncertainty"], 3.0, None),
+    "design-bench": ([*DESIGN, "70", "--afterload", "90", "--bpm", "60"], 3.0, 15.0),
+    "design-lv": ([*DESIGN, "40", "--scene", "lv-systemic", "--bpm", "72"], 3.0, 15.0),
+    "design-rv": ([*DESIGN, "50", "--scene", "rv-pulmonary"], 3.0, 15.0),
+    "design-tah": (
+        ["cardiosoft.design", "--scene", "tah", "--target-co", "5", "--lap", "8", "--rap", "5"],
+        10.0,
+        None,
+    ),
+}
+"""What section 1 times: the command, and issue #41's warm and cold targets (s; None: none)."""
 LOG_LINE = re.compile(
     r"Finished (tracing|jaxpr to MLIR module conversion|XLA compilation) "
     r"(?:of )?(?:jit\()?([\w<>.]+)\)?.* in ([0-9.e+-]+) sec"
@@ -58,39 +72,54 @@ def _wall(cmd, env=None) -> float:
     return time.perf_counter() - start
 
 
+def _cold_warm_traced(cmd, repeat: int) -> dict[str, list[float]]:
+    walls = {"cold": [], "warm": [], "warm, traced": []}
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as other:
+            env = {**os.environ, "CARDIOSOFT_COMPILE_CACHE": cache}
+            walls["cold"].append(_wall(cmd, env))  # fills the empty cache folder
+            walls["warm"].append(_wall(cmd, env))  # the stored programs, not traced
+            # the compile cache alone, the programs traced in each process; a folder of its
+            # own, filled by a traced run (the stored programs compile to other executables)
+            traced = {**env, "CARDIOSOFT_COMPILE_CACHE": other, "CARDIOSOFT_PROGRAM_STORE": "0"}
+            _wall(cmd, traced)
+            walls["warm, traced"].append(_wall(cmd, traced))
+    return walls
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="fresh processes to time (3)")
+    parser.add_argument(
+        "--commands", nargs="+", choices=COMMANDS, default=["main"],
+        help="what to time (default: main; all of them take about 25 minutes)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
-    print(f"cardiosoft start-up benchmark: {' '.join(MAIN_JOB[1:])}")
+    print(f"cardiosoft start-up benchmark: {', '.join(args.commands)}")
     print(f"machine: os.cpu_count() = {os.cpu_count()}, load average {os.getloadavg()[0]:.2f}")
-
-    walls = {"cold": [], "warm": [], "warm, traced": []}
-    for _ in range(args.repeat):
-        with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as other:
-            env = {**os.environ, "CARDIOSOFT_COMPILE_CACHE": cache}
-            walls["cold"].append(_wall(MAIN_JOB, env))  # fills the empty cache folder
-            walls["warm"].append(_wall(MAIN_JOB, env))  # the stored programs, not traced
-            # the compile cache alone, the programs traced in each process (issue #41's
-            # "before"); a folder of its own, filled by a traced run (the stored programs
-            # compile to other executables)
-            traced = {**env, "CARDIOSOFT_COMPILE_CACHE": other, "CARDIOSOFT_PROGRAM_STORE": "0"}
-            _wall(MAIN_JOB, traced)
-            walls["warm, traced"].append(_wall(MAIN_JOB, traced))
-    print(f"\n1. main job, {args.repeat} fresh processes each (target {TARGET_S:g} s; issue #41:")
-    print(f"   {WARM_TARGET_S:g} s warm, {COLD_TARGET_S:g} s cold):")
-    for kind, w in walls.items():
-        print(
-            f"   {kind + ':':<14} best {min(w):.1f} s, median {statistics.median(w):.1f} s"
-            f" ({', '.join(f'{x:.1f}' for x in w)}); best / target {min(w) / TARGET_S:.2f}"
-        )
-    best = min(walls["cold"])
-    median = {kind: statistics.median(w) for kind, w in walls.items()}
     print(
-        f"   warm / cold (medians): {median['warm'] / median['cold']:.2f}; warm / warm traced:"
-        f" {median['warm'] / median['warm, traced']:.2f}; warm / issue #41's "
-        f"{WARM_TARGET_S:g} s: {median['warm'] / WARM_TARGET_S:.2f}"
+        f"\n1. fresh processes, {args.repeat} each: cold compile cache, warm (the programs "
+        "loaded from the store), warm traced (CARDIOSOFT_PROGRAM_STORE=0; issue #41's before)"
     )
+    best = None
+    for name in args.commands:
+        command, warm_target, cold_target = COMMANDS[name]
+        walls = _cold_warm_traced([sys.executable, "-m", *command, "--quiet"], args.repeat)
+        median = {kind: statistics.median(w) for kind, w in walls.items()}
+        print(f"   {name}: python -m {' '.join(command)}")
+        for kind, w in walls.items():
+            print(
+                f"     {kind + ':':<14} best {min(w):5.1f} s, median {median[kind]:5.1f} s"
+                f" ({', '.join(f'{x:.1f}' for x in w)})"
+            )
+        print(
+            f"     warm / warm traced {median['warm'] / median['warm, traced']:.2f}; warm / "
+            f"issue #41's {warm_target:g} s: {median['warm'] / warm_target:.2f}"
+            + (f"; cold / its {cold_target:g} s: {median['cold'] / cold_target:.2f}"
+               if cold_target else "")
+        )  # fmt: skip
+        if name == "main":
+            best = min(walls["cold"])
 
     package = [_wall([sys.executable, "-c", "import cardiosoft"]) for _ in range(args.repeat)]
     print(
@@ -101,7 +130,8 @@ def main(argv=None) -> int:
     solve = [_wall([sys.executable, "-c", SOLVE_IMPORTS]) for _ in range(args.repeat)]
     print(
         f"   the solve's modules (jax, diffrax, equinox, cardiosoft.experiment): best "
-        f"{min(solve):.1f} s = {min(solve) / best:.0%} of the best cold run"
+        f"{min(solve):.1f} s"
+        + (f" = {min(solve) / best:.0%} of the main job's best cold run" if best else "")
     )
 
     env = {**os.environ, "JAX_LOG_COMPILES": "1", "CARDIOSOFT_COMPILE_CACHE": "0"}

@@ -2,10 +2,14 @@
 ``jax.export`` (its traced StableHLO) and stored beside the compile cache, so that a later
 process deserialises it instead of tracing it. JAX's compile cache then gives the executable.
 
-A warm ``simulate --bpm 60`` spent about 2.7 s tracing the batch solve, which JAX redoes in
-every process; loading its stored program and the executable takes about 0.5 s
-(``benchmarks/startup.py``).
+JAX traces a program again in every process: of a warm ``simulate --bpm 60`` (8.4 s on a busy
+2-core machine) most was tracing; loading the stored programs instead takes it to 3.1 s, and
+the README's design question from 21 s to 5.5 s (``benchmarks/startup.py``). A cold process
+traces, exports and stores (0.5 s more than tracing alone).
 
+- :func:`stored_call` runs an ``eqx.filter_jit`` function through its stored program (the
+  batch solves, the quasi-static strokes); :func:`stored_lowering` lowers one for a caller that
+  compiles on threads of its own (design's two programs).
 - Only a command's own process stores programs (:func:`cardiosoft._cli.prepare_process` calls
   :func:`use_program_store`, beside the compile cache); a library call, or a test calling a
   command's ``main()`` in-process, traces as before. So does a process with several devices
@@ -24,9 +28,13 @@ every process; loading its stored program and the executable takes about 0.5 s
   leaves; the output's tree is stored as a layout of plain containers and equinox modules
   whose fields are all arrays (:func:`output_layout`), rebuilt by their constructors. A
   function whose output holds anything else is traced, not stored.
-- Gradients: the exported program is whatever the function traces, so a function that calls
-  ``jax.jacfwd`` (design's Jacobian) or differentiates through the orbit's implicit derivative
-  is stored the same way; its derivatives are part of the stored StableHLO, not taken of it.
+- Gradients: the exported program is whatever the function traces. Design's derivative
+  program (one ``jax.jvp`` of the orbits' batch solve, through the orbit's implicit
+  derivative) is stored as it is traced: its derivatives are part of the stored StableHLO,
+  not taken of it. A call inside another trace (a derivative taken of a solve, design's
+  programs calling ``solve_beats``) is part of that trace and never goes to the store.
+- Entries are not pruned: each edit of cardiosoft's sources or new version keys new ones
+  (about 0.2 MB each); deleting the folder is always safe.
 """
 
 from __future__ import annotations
