@@ -227,8 +227,8 @@ def _export(fn, keywords, static, tree, leaves):
     shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
     try:
         program = export.export(jax.jit(flat))(*shapes)
-    except NotImplementedError:  # host callbacks (EQX_ON_ERROR=raise of the user's) do not export
-        return None
+    except Exception:  # e.g. host callbacks (a user's EQX_ON_ERROR=raise) do not export: the
+        return None  # call is traced as before, and an error of the function's own raised there
     return (box["layout"], program) if box["layout"] is not None else None
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import diffrax
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -91,6 +92,17 @@ def test_a_damaged_entry_is_rebuilt_not_trusted(store, damage):
     use_program_store(store)
     stored_call(_beat_like, NUMBERS, 2.0)
     assert TRACED == [2.0, 2.0], "the entry was not rewritten"  # the rebuilt one is loaded
+
+
+@eqx.filter_jit
+def _with_host_callback(x):
+    jax.debug.callback(lambda: TRACED.append("called back"))  # JAX cannot export this
+    return 2 * x
+
+
+def test_a_program_that_cannot_be_exported_is_traced_as_before(store):
+    np.testing.assert_array_equal(stored_call(_with_host_callback, jnp.ones(2)), [2.0, 2.0])
+    assert not list(store.glob("*.jaxprogram"))
 
 
 def test_without_a_store_the_function_is_traced_as_usual():
