@@ -9,6 +9,7 @@ read out at the same times, so the answer is the model's converged one, not the 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 import diffrax
@@ -18,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cardiosoft.network.svzerod import Model
+from cardiosoft.program_store import stored_call
 from cardiosoft.solve import PRESETS, SolverConfig, integrate, periodic_beats, preset
 
 
@@ -183,6 +185,9 @@ def simulate(
     def each(f, *axes):  # f over the variants, or f itself for one network
         return f if variants is None else eqx.filter_vmap(f, in_axes=axes)
 
+    def each_stored(jitted, *axes):  # likewise, one network's program from a command's store
+        return functools.partial(stored_call, jitted) if variants is None else each(jitted, *axes)
+
     x0 = model.initial_states()
     steady_start = None
     if sim.steady_initial:
@@ -218,14 +223,14 @@ def simulate(
             config = SolverConfig(base.solver, rtol, atol, base.pcoeff, base.icoeff, budget)
             x_first, started = x0, True
             if steady:
-                x_first, beats, residual, result = each(_steady_beats, 0, 0, *[None] * 4)(
+                x_first, beats, residual, result = each_stored(_steady_beats, 0, 0, *[None] * 4)(
                     net, x0, float(t_all[-1]), jumps, config, max_beats or STEADY_MAX_BEATS
                 )
                 started = bool(jnp.all(result == diffrax.RESULTS.successful))
                 residual = float(jnp.max(residual))
                 periodic = dict(steady=started and residual <= 1.0, beats=int(jnp.max(beats)))
                 periodic["residual"] = residual
-            zs, internal, converged, result, steps, x_end = each(_run, 0, 0, *[None] * 5)(
+            zs, internal, converged, result, steps, x_end = each_stored(_run, 0, 0, *[None] * 5)(
                 net, x_first, float(t_all[-1]), ts, jumps, config, sim.derivative
             )
             solved = started and bool(jnp.all(result == diffrax.RESULTS.successful))
