@@ -1,6 +1,7 @@
 """The command lines' compile cache (cardiosoft._cli.use_compile_cache): on by default in a
-folder of its own, off with ``CARDIOSOFT_COMPILE_CACHE=0``, harmless when the folder cannot be
-written, and reused by the next process (JAX's log says so; no clock is read).
+folder of its own, with the exported programs in its ``programs/`` (off alone with
+``CARDIOSOFT_PROGRAM_STORE=0``), off with ``CARDIOSOFT_COMPILE_CACHE=0``, harmless when the
+folder cannot be written, and reused by the next process (JAX's log says so; no clock is read).
 
 Each test sets ``CARDIOSOFT_COMPILE_CACHE`` or ``XDG_CACHE_HOME`` to a folder under tmp_path,
 so that nothing is written to the user's own cache.
@@ -47,6 +48,8 @@ def test_default_folder_follows_xdg_cache_home_and_a_second_process_reuses_it(tm
     folder = xdg / "cardiosoft" / "jax"
     stored = {p.name.split("-")[0] for p in folder.iterdir()}
     assert {"jit__solve", "jit_static_strokes"} <= stored, stored
+    # and beside the executables, the two programs exported (cardiosoft.program_store)
+    assert len(list((folder / "programs").glob("*.jaxprogram"))) == 2
     assert "Persistent compilation cache hit for 'jit__solve'" not in cold.stderr
     warm, second = simulate(tmp_path, "warm", "--bpm", "30", **env)
     for name in ("jit__solve", "jit_static_strokes"):
@@ -66,6 +69,20 @@ def test_cache_off_writes_no_folder(tmp_path):
     )
     assert not xdg.exists()
     assert "warning" not in done.stderr
+
+
+def test_program_store_off_keeps_the_compile_cache(tmp_path):
+    folder = tmp_path / "cache"
+    simulate(
+        tmp_path,
+        "no-store",
+        "--scene",
+        "bench-static",
+        CARDIOSOFT_COMPILE_CACHE=str(folder),
+        CARDIOSOFT_PROGRAM_STORE="0",
+    )
+    assert any(p.name.startswith("jit_static_strokes") for p in folder.iterdir())
+    assert not (folder / "programs").exists()
 
 
 def test_a_folder_that_cannot_be_written_warns_once_and_runs_without_cache(tmp_path):
