@@ -255,20 +255,35 @@ class StoredLowering:
         return call
 
 
+def _stores(args) -> bool:
+    """Whether this process stores a program called with ``args``: it keeps a store, has one
+    device (a sweep shards a batch over several: its programs are traced, as before), and
+    ``args`` are not inside another trace (design's programs call ``solve_beats``)."""
+    import jax
+
+    if _state["folder"] is None or jax.device_count() > 1:
+        return False
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(args))
+
+
+def _name(fn) -> str:
+    return f"{fn.__module__}.{fn.__qualname__}"
+
+
 def stored_lowering(fn, *args, **keywords) -> StoredLowering | None:
     """``fn`` lowered for ``args`` (arrays, or ``jax.ShapeDtypeStruct`` leaves, and static
     values) and the static ``keywords``, from its stored program, exported and stored first
-    when there is none; None when this process keeps no store (:func:`use_program_store`)
-    or the program cannot be stored: the caller then traces ``fn`` itself."""
-    folder = _state["folder"]
-    if folder is None:
+    when there is none; None when this process stores no such program (no store, several
+    devices) or the program cannot be stored: the caller then traces ``fn`` itself."""
+    if not _stores(args):
         return None
+    return _lowering(fn, keywords, *program_key(_name(fn), args, keywords))
+
+
+def _lowering(fn, keywords, key, static, tree, leaves) -> StoredLowering | None:
     import jax
 
-    if jax.device_count() > 1:  # a batch sharded over devices (a sweep): traced, as before
-        return None
-    name = f"{fn.__module__}.{fn.__qualname__}"
-    key, static, tree, leaves = program_key(name, args, keywords)
+    folder = _state["folder"]
     path = folder / f"{key}{SUFFIX}"
     entry = _read(path, key)
     if entry is None:
@@ -293,16 +308,14 @@ def stored_lowering(fn, *args, **keywords) -> StoredLowering | None:
 
 def stored_call(jitted, *args):
     """``jitted(*args)`` (an ``eqx.filter_jit`` function), through its stored program when
-    this process keeps a store (:func:`stored_lowering`); compiled once a process."""
-    import jax
-
-    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(args))
-    if _state["folder"] is None or traced:  # no store, or inside another trace (design's)
+    this process stores it (:func:`stored_lowering`); compiled once a process."""
+    if not _stores(args):
         return jitted(*args)
     fn = jitted.__wrapped__
-    key = program_key(f"{fn.__module__}.{fn.__qualname__}", args, {})[0]
+    found = program_key(_name(fn), args, {})
+    key = found[0]
     if key not in _state["loaded"]:
-        lowering = stored_lowering(fn, *args)
+        lowering = _lowering(fn, {}, *found)
         _state["loaded"][key] = None if lowering is None else lowering.compile()
     call = _state["loaded"][key]
     return jitted(*args) if call is None else call(*args)
