@@ -4,7 +4,7 @@ shipped scene.
 
     python benchmarks/startup.py [--repeat N]                  # the main job: about 2 minutes
     python benchmarks/startup.py --commands main uncertainty design-bench design-lv \
-        design-rv design-tah --repeat 1                        # about 25 minutes on 2 cores
+        design-rv design-tah model --repeat 1                  # about 25 minutes on 2 cores
 
 The solve itself takes about 30 ms; the rest of a command is start-up: importing JAX and
 diffrax, tracing and compiling its programs. This script prints
@@ -16,7 +16,9 @@ diffrax, tracing and compiling its programs. This script prints
    #41's "before"), with the ratios to each other and to the issue's targets;
 2. the import time of a fresh process: ``import cardiosoft`` against issue #41's 0.8 s, and
    the modules the solve needs (JAX, diffrax, the engine);
-3. JAX's own log of the main job without the cache (``JAX_LOG_COMPILES``): tracing, lowering
+3. the anchor: ``svzerod`` (svZeroDSolver's own build) solving its closed-loop heart case
+   from a fresh process, and each timed command's warm median against it;
+4. JAX's own log of the main job without the cache (``JAX_LOG_COMPILES``): tracing, lowering
    and XLA compilation per jitted function, largest first. The quasi-static strokes compile on
    a second thread while the dynamic solve traces and compiles, so the entries overlap and do
    not add up to the wall time.
@@ -42,12 +44,17 @@ SOLVE_IMPORTS = "import cardiosoft.experiment"
 """What the main job imports before it solves (``cardiosoft.run`` and everything under it)."""
 MAIN_JOB = [sys.executable, "-m", "cardiosoft.simulate", "--bpm", "60", "--quiet"]
 DESIGN = ["cardiosoft.design", "--target-sv"]
+HEART_CASE = REPO / "tests" / "data" / "svzerod" / "closedLoopHeart_singleVessel.json"
+"""svZeroDSolver's closed-loop heart case: the anchor (issue #41), run by both solvers."""
+SVZEROD = f"import json, svzerod; svzerod.simulate(json.load(open({str(HEART_CASE)!r})))"
+"""The anchor from a fresh process: svZeroDSolver's own Python build on its case."""
 COMMANDS = {
     "main": (["cardiosoft.simulate", "--bpm", "60"], 1.5, 4.0),
     "uncertainty": (["cardiosoft.simulate", "--bpm", "60", "--uncertainty"], 3.0, None),
     "design-bench": ([*DESIGN, "70", "--afterload", "90", "--bpm", "60"], 3.0, 15.0),
     "design-lv": ([*DESIGN, "40", "--scene", "lv-systemic", "--bpm", "72"], 3.0, 15.0),
     "design-rv": ([*DESIGN, "50", "--scene", "rv-pulmonary"], 3.0, 15.0),
+    "model": (["cardiosoft.simulate", "--scene", str(HEART_CASE)], None, None),
     "design-tah": (
         ["cardiosoft.design", "--scene", "tah", "--target-co", "5", "--lap", "8", "--rap", "5"],
         10.0,
@@ -101,7 +108,7 @@ def main(argv=None) -> int:
         f"\n1. fresh processes, {args.repeat} each: cold compile cache, warm (the programs "
         "loaded from the store), warm traced (CARDIOSOFT_PROGRAM_STORE=0; issue #41's before)"
     )
-    best = None
+    best, warm = None, {}
     for name in args.commands:
         command, warm_target, cold_target = COMMANDS[name]
         walls = _cold_warm_traced([sys.executable, "-m", *command, "--quiet"], args.repeat)
@@ -112,12 +119,14 @@ def main(argv=None) -> int:
                 f"     {kind + ':':<14} best {min(w):5.1f} s, median {median[kind]:5.1f} s"
                 f" ({', '.join(f'{x:.1f}' for x in w)})"
             )
-        print(
-            f"     warm / warm traced {median['warm'] / median['warm, traced']:.2f}; warm / "
-            f"issue #41's {warm_target:g} s: {median['warm'] / warm_target:.2f}"
-            + (f"; cold / its {cold_target:g} s: {median['cold'] / cold_target:.2f}"
-               if cold_target else "")
-        )  # fmt: skip
+        ratios = [f"warm / warm traced {median['warm'] / median['warm, traced']:.2f}"]
+        if warm_target:
+            ratio = median["warm"] / warm_target
+            ratios.append(f"warm / issue #41's {warm_target:g} s: {ratio:.2f}")
+        if cold_target:
+            ratios.append(f"cold / its {cold_target:g} s: {median['cold'] / cold_target:.2f}")
+        print(f"     {'; '.join(ratios)}")
+        warm[name] = median["warm"]
         if name == "main":
             best = min(walls["cold"])
 
@@ -134,6 +143,13 @@ def main(argv=None) -> int:
         + (f" = {min(solve) / best:.0%} of the main job's best cold run" if best else "")
     )
 
+    anchor = [_wall([sys.executable, "-c", SVZEROD]) for _ in range(args.repeat)]
+    print(
+        f"3. the anchor: svzerod (svZeroDSolver) on {HEART_CASE.name} from a fresh process, "
+        f"best {min(anchor):.2f} s"
+        + "".join(f"; {name} warm / it: {t / min(anchor):.1f}" for name, t in warm.items())
+    )
+
     env = {**os.environ, "JAX_LOG_COMPILES": "1", "CARDIOSOFT_COMPILE_CACHE": "0"}
     log = subprocess.run(MAIN_JOB, cwd=REPO, env=env, capture_output=True, text=True).stderr
     seconds = defaultdict(float)
@@ -141,7 +157,7 @@ def main(argv=None) -> int:
     for phase, name, sec in LOG_LINE.findall(log):
         seconds[(name, PHASES[phase])] += float(sec)
         count[(name, PHASES[phase])] += 1
-    print("3. JAX's log of one run (s; largest first; the two big jits overlap on two threads):")
+    print("4. JAX's log of one run (s; largest first; the two big jits overlap on two threads):")
     print(f"   {'function':<24}{'phase':<9}{'s':>7}{'count':>7}")
     ranked = sorted(seconds.items(), key=lambda kv: -kv[1])
     for (name, phase), sec in ranked[:8]:
