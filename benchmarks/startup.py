@@ -42,7 +42,6 @@ IMPORT_TARGET_S = 0.8
 """Issue #41's budget for ``import cardiosoft`` (s)."""
 SOLVE_IMPORTS = "import cardiosoft.experiment"
 """What the main job imports before it solves (``cardiosoft.run`` and everything under it)."""
-MAIN_JOB = [sys.executable, "-m", "cardiosoft.simulate", "--bpm", "60", "--quiet"]
 DESIGN = ["cardiosoft.design", "--target-sv"]
 HEART_CASE = REPO / "tests" / "data" / "svzerod" / "closedLoopHeart_singleVessel.json"
 """svZeroDSolver's closed-loop heart case: the anchor (issue #41), run by both solvers."""
@@ -62,6 +61,12 @@ COMMANDS = {
     ),
 }
 """What section 1 times: the command, and issue #41's warm and cold targets (s; None: none)."""
+
+
+def fresh_process(name: str) -> list[str]:
+    """The command line of :data:`COMMANDS`' ``name`` as a fresh process runs it."""
+    return [sys.executable, "-m", *COMMANDS[name][0], "--quiet"]
+
 LOG_LINE = re.compile(
     r"Finished (tracing|jaxpr to MLIR module conversion|XLA compilation) "
     r"(?:of )?(?:jit\()?([\w<>.]+)\)?.* in ([0-9.e+-]+) sec"
@@ -111,7 +116,7 @@ def main(argv=None) -> int:
     best, warm = None, {}
     for name in args.commands:
         command, warm_target, cold_target = COMMANDS[name]
-        walls = _cold_warm_traced([sys.executable, "-m", *command, "--quiet"], args.repeat)
+        walls = _cold_warm_traced(fresh_process(name), args.repeat)
         median = {kind: statistics.median(w) for kind, w in walls.items()}
         print(f"   {name}: python -m {' '.join(command)}")
         for kind, w in walls.items():
@@ -151,7 +156,8 @@ def main(argv=None) -> int:
     )
 
     env = {**os.environ, "JAX_LOG_COMPILES": "1", "CARDIOSOFT_COMPILE_CACHE": "0"}
-    log = subprocess.run(MAIN_JOB, cwd=REPO, env=env, capture_output=True, text=True).stderr
+    main_job = fresh_process("main")
+    log = subprocess.run(main_job, cwd=REPO, env=env, capture_output=True, text=True).stderr
     seconds = defaultdict(float)
     count = defaultdict(int)
     for phase, name, sec in LOG_LINE.findall(log):

@@ -8,8 +8,8 @@ CLIs, notebooks and tests use; the library never switches it on by itself, and n
 a JAX array when it is imported, so the switch may come after ``import cardiosoft``.
 
 The public names below are imported on first use (PEP 562), so ``import cardiosoft`` costs
-no JAX import (about 1.5 s): a command can parse its options and refuse bad input before it
-imports what the solve needs (issue #41). The command-line modules (``python -m
+no JAX import (about 1.5 s): ``cardiosoft --help`` and a script that uses one module pay only
+for what they import (issue #41). The command-line modules (``python -m
 cardiosoft.simulate``, ``python -m cardiosoft.geometry``) are never imported here, so that
 running one does not find it imported already.
 """
