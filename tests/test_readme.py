@@ -1,8 +1,11 @@
-"""The README against the code: its test command is the one CI runs, verbatim, and every
-command and public name it shows still works (issue 25: a walk through the README).
+"""The README and the documentation site's pages against the code: the README's test command
+is the one CI runs, verbatim, the README stays a front door (at most 150 lines), and every
+command and public name the README and the pages of ``docs/`` show still works (issue 25: a
+walk through the README; issue 42: the pages it moved to).
 
-The commands are checked cheaply: each command line of the README (its ``bash`` blocks and its
-inline ``python -m cardiosoft...`` / ``cardiosoft ...``) is parsed by that command's own parser
+The commands are checked cheaply: each command line of the README and of every ``docs/**/*.md``
+page (their ``bash`` blocks and their inline ``python -m cardiosoft...`` / ``cardiosoft ...``)
+is parsed by that command's own parser
 (every option the README uses exists and takes the values it is given), other scripts and
 modules it names exist, and the ``cardiosoft`` command itself runs: ``--version``, ``--help``,
 and ``cardiosoft geometry`` printing what ``python -m cardiosoft.geometry`` prints.
@@ -22,6 +25,14 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 MARKER = "# set up and run the tests"
 README = (ROOT / "README.md").read_text()
+README_MAX_LINES = 150  # issue 42: the README is the front door; the long results live in docs/
+# The files the walk reads: the README and every page of the site (docs/notebooks/index.md is
+# a link to notebooks/README.md, which is walked through it).
+WALKED = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").rglob("*.md"))]
+
+
+def text_of(name: str) -> str:
+    return (ROOT / name).read_text(encoding="utf-8")
 
 
 def readme_test_command() -> str:
@@ -45,19 +56,27 @@ def test_readme_test_command_is_run_by_ci_verbatim():
     )
 
 
+def test_the_readme_is_a_front_door():
+    lines = README.count("\n") + (not README.endswith("\n"))  # wc -l, and a last line unended
+    assert lines <= README_MAX_LINES, (
+        f"README.md has {lines} lines, at most {README_MAX_LINES}: move the long parts to docs/"
+    )
+
+
 # ------------------------------------------------------------------------------ the walk
 
 
-def readme_command_lines() -> list[str]:
-    """Every command line of the README: the lines of its bash blocks (comments cut, each
-    ``&&`` part on its own) and its inline code spans that start like a command."""
+def readme_command_lines(text: str = README) -> list[str]:
+    """Every command line of a Markdown file (the README by default): the lines of its bash
+    blocks (comments cut, each ``&&`` part on its own) and its inline code spans that start
+    like a command."""
     lines = []
-    for block in re.findall(r"```bash\n(.*?)```", README, flags=re.S):
+    for block in re.findall(r"```bash\n(.*?)```", text, flags=re.S):
         for line in block.splitlines():
             line = line.split(" #")[0].strip()
             if line and not line.startswith("#"):
                 lines += [part.strip() for part in line.split("&&")]
-    for span in re.findall(r"`([^`\n]+)`", README):
+    for span in re.findall(r"`([^`\n]+)`", text):
         if re.match(r"(python|cardiosoft) ", span):
             lines.append(span)
     return lines
@@ -74,26 +93,34 @@ def tool_and_arguments(line: str):
     return None
 
 
-TOOL_LINES = [line for line in readme_command_lines() if tool_and_arguments(line)]
+TOOL_LINES = [
+    pytest.param(line, id=f"{name}: {line}")
+    for name in WALKED
+    for line in readme_command_lines(text_of(name))
+    if tool_and_arguments(line)
+]
 
 
 def test_the_readme_shows_every_command():
-    tools = {tool_and_arguments(line)[0] for line in TOOL_LINES}
+    """The README and the pages together show every subcommand."""
+    tools = {tool_and_arguments(p.values[0])[0] for p in TOOL_LINES}
+    tools = {t for t in tools if not t.isupper()}  # placeholders: "python -m cardiosoft.X"
     from cardiosoft.cli import COMMANDS
 
-    assert set(COMMANDS) - {"X"} <= tools | {"X"}, tools  # X: "python -m cardiosoft.X"
+    assert set(COMMANDS) <= tools, set(COMMANDS) - tools
     assert {"simulate", "design", "sweep", "stress", "geometry"} <= set(COMMANDS)
 
 
 @pytest.mark.parametrize("line", TOOL_LINES)
 def test_every_command_line_of_the_readme_parses(line):
-    """The command's own parser accepts the README's arguments (a placeholder ``...`` or an
-    ``X`` stands for any, and a command named without arguments for the command: then each
-    option shown must exist)."""
+    """The command's own parser accepts the README's and the pages' arguments (a placeholder
+    ``...`` stands for any arguments, a command in capitals, ``X`` or ``COMMAND``, for any
+    command, and a command named without arguments for the command: then each option shown
+    must exist)."""
     from cardiosoft.cli import COMMANDS
 
     tool, argv = tool_and_arguments(line)
-    if tool == "X":
+    if tool.isupper():  # a placeholder for any command: X, COMMAND
         return
     assert tool in COMMANDS, line
     parser = importlib.import_module(COMMANDS[tool][0]).parser(f"cardiosoft {tool}")
@@ -104,9 +131,10 @@ def test_every_command_line_of_the_readme_parses(line):
     parser.parse_args(argv)  # exits with status 2 (and fails this test) on a bad argument
 
 
-def test_other_commands_of_the_readme_exist():
-    """``python -m fit...``, ``python benchmarks/x.py``, ``python notebooks/execute.py``."""
-    others = [line for line in readme_command_lines() if not tool_and_arguments(line)]
+def other_commands_exist(text: str) -> int:
+    """Checks ``python -m fit...``, ``python benchmarks/x.py``, ``python notebooks/execute.py``
+    of a file exist; how many it checked."""
+    others = [line for line in readme_command_lines(text) if not tool_and_arguments(line)]
     seen = 0
     for line in others:
         words = shlex.split(line)
@@ -119,19 +147,31 @@ def test_other_commands_of_the_readme_exist():
         elif words[0].endswith("python") and words[1].endswith(".py"):
             assert (ROOT / words[1]).is_file(), line
             seen += 1
-    assert seen >= 3
+    return seen
 
 
-def public_names() -> set[str]:
-    """The dotted names of cardiosoft the README names (``cardiosoft.x.y``, ``cs.x``)."""
-    names = set(re.findall(r"`(cardiosoft(?:\.[A-Za-z_][A-Za-z0-9_]*)+)", README))
-    names |= {f"cardiosoft.{n}" for n in re.findall(r"\bcs\.([A-Za-z_][A-Za-z0-9_]*)", README)}
-    for module, imported in re.findall(r"from (cardiosoft[.\w]*) import ([\w, ]+)", README):
+@pytest.mark.parametrize("name", WALKED)
+def test_other_commands_of_the_readme_exist(name):
+    other_commands_exist(text_of(name))
+
+
+def test_the_walk_sees_other_commands():
+    assert sum(other_commands_exist(text_of(name)) for name in WALKED) >= 3
+
+
+def public_names(text: str = README) -> set[str]:
+    """The dotted names of cardiosoft a file names (``cardiosoft.x.y``, ``cs.x``)."""
+    names = set(re.findall(r"`(cardiosoft(?:\.[A-Za-z_][A-Za-z0-9_]*)+)", text))
+    names |= {f"cardiosoft.{n}" for n in re.findall(r"\bcs\.([A-Za-z_][A-Za-z0-9_]*)", text)}
+    for module, imported in re.findall(r"from (cardiosoft[.\w]*) import ([\w, ]+)", text):
         names |= {f"{module}.{n.strip()}" for n in imported.split(",")}
     return names
 
 
-@pytest.mark.parametrize("name", sorted(public_names()))
+NAMED = sorted({(name, file) for file in WALKED for name in public_names(text_of(file))})
+
+
+@pytest.mark.parametrize("name", [pytest.param(name, id=f"{file}: {name}") for name, file in NAMED])
 def test_every_public_name_of_the_readme_exists(name):
     parts = name.split(".")
     for n in range(len(parts), 0, -1):  # the longest prefix that is a module
