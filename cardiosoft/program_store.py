@@ -33,8 +33,9 @@ traces, exports and stores (0.5 s more than tracing alone).
   derivative) is stored as it is traced: its derivatives are part of the stored StableHLO,
   not taken of it. A call inside another trace (a derivative taken of a solve, design's
   programs calling ``solve_beats``) is part of that trace and never goes to the store.
-- Entries are not pruned: each edit of cardiosoft's sources or new version keys new ones
-  (about 0.2 MB each); deleting the folder is always safe.
+- The store keeps at most :data:`STORE_LIMIT_BYTES`: each edit of cardiosoft's sources or
+  new version keys new entries (about 0.2 MB each), so writing one deletes the least recently
+  used beyond the limit (a read marks an entry used). Deleting the folder is always safe.
 """
 
 from __future__ import annotations
@@ -51,13 +52,15 @@ from importlib import metadata
 from pathlib import Path
 
 __all__ = [
-    "FORMAT", "StoredLowering", "output_layout", "program_key", "stored_call", "stored_lowering",
-    "use_program_store",
+    "FORMAT", "STORE_LIMIT_BYTES", "StoredLowering", "output_layout", "program_key", "prune",
+    "stored_call", "stored_lowering", "use_program_store",
 ]  # fmt: skip
 
 FORMAT = "cardiosoft-program-1"
 """The entry format: the header's ``format``."""
 SUFFIX = ".jaxprogram"
+STORE_LIMIT_BYTES = 256 * 2**20
+"""The most a store holds: about a thousand programs, every command's for several versions."""
 
 _state = {"folder": None, "loaded": {}}  # this process's store and its programs by key
 
@@ -186,9 +189,14 @@ def _read(path: Path, key: str):
             return None
         size = header["layout_bytes"]
         layout = json.loads(body[:size])
-        return layout, export.deserialize(bytearray(body[size:]))
+        program = export.deserialize(bytearray(body[size:]))
     except Exception:  # any unreadable entry is rebuilt, never trusted
         return None
+    try:
+        os.utime(path)  # used now: pruned last
+    except OSError:
+        pass
+    return layout, program
 
 
 def _write(path: Path, key: str, layout, program: bytes) -> None:
@@ -208,6 +216,28 @@ def _write(path: Path, key: str, layout, program: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    prune(path.parent, STORE_LIMIT_BYTES)
+
+
+def prune(folder: Path, limit: int) -> list[Path]:
+    """Delete the least recently used entries of ``folder`` (by modification time, which a
+    read renews) until the rest hold at most ``limit`` bytes; returns what was deleted."""
+    entries = []
+    for path in folder.glob(f"*{SUFFIX}"):
+        try:
+            stat = path.stat()
+        except OSError:  # deleted by a concurrent prune
+            continue
+        entries.append((stat.st_mtime, stat.st_size, path))
+    total = sum(size for _, size, _ in entries)
+    deleted = []
+    for _, size, path in sorted(entries):
+        if total <= limit:
+            break
+        path.unlink(missing_ok=True)
+        total -= size
+        deleted.append(path)
+    return deleted
 
 
 def _export(fn, keywords, static, tree, leaves):

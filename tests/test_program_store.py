@@ -17,7 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cardiosoft.program_store import stored_call, use_program_store
+from cardiosoft import program_store
+from cardiosoft.program_store import prune, stored_call, use_program_store
 
 ROOT = Path(__file__).resolve().parent.parent
 TRACED = []  # one entry each time the function below is traced
@@ -92,6 +93,28 @@ def test_a_damaged_entry_is_rebuilt_not_trusted(store, damage):
     use_program_store(store)
     stored_call(_beat_like, NUMBERS, 2.0)
     assert TRACED == [2.0, 2.0], "the entry was not rewritten"  # the rebuilt one is loaded
+
+
+def test_pruning_deletes_the_least_recently_used_entries(store, monkeypatch):
+    written = []
+    for age, scale in enumerate((2.0, 3.0, 4.0)):  # three entries, the first the oldest
+        stored_call(_beat_like, NUMBERS, scale)
+        (new,) = set(store.glob("*.jaxprogram")) - set(written)
+        os.utime(new, (1e9 + age, 1e9 + age))
+        written.append(new)
+    use_program_store(store)  # a new process reads the oldest entry: it is used now
+    stored_call(_beat_like, NUMBERS, 2.0)
+    assert TRACED == [2.0, 3.0, 4.0], "the oldest entry was not loaded"
+    kept = written[0].stat().st_size + written[2].stat().st_size
+    deleted = prune(store, kept)  # room for two of the three
+    assert deleted == [written[1]], "not the least recently used entry"
+    assert sorted(store.glob("*.jaxprogram")) == sorted([written[0], written[2]])
+
+    # a write prunes the store to its limit: here room for one entry (they differ by bytes)
+    monkeypatch.setattr(program_store, "STORE_LIMIT_BYTES", written[0].stat().st_size + 64)
+    stored_call(_beat_like, NUMBERS, 5.0)
+    (left,) = store.glob("*.jaxprogram")
+    assert left not in written, "the write did not prune the store"
 
 
 @eqx.filter_jit
