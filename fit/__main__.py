@@ -24,7 +24,6 @@ def main(argv=None) -> int:
 
     from cardiosoft import datasets
     from cardiosoft.files import refuse_overwrite
-    from cardiosoft.pump import load, load_card
     from fit import fitting, pipeline, report
 
     parser = argparse.ArgumentParser(prog="python -m fit", description=__doc__.split("\n")[0])
@@ -61,11 +60,7 @@ def main(argv=None) -> int:
     try:
         data = datasets.load_paper_data(args.data)
         if args.report:
-            model, card = load(args.artifact), load_card(args.artifact)
-            rig = fitting.rig_from_card(card)
-            m = report.metrics(model, rig, data, membrane=card["format_version"] >= 4)
-            for key in ("table1_loo_mae_ml", "peak_force_left_out"):
-                m[key] = card["metrics"][key]
+            m, card = report.artifact_metrics(args.artifact, data)
             print(report.format_report(m, data, card["rig"]))
             print("  (leave-one-out values recorded by the fit in the card)")
             return 0 if all(report.verdicts(m).values()) else 1
@@ -78,7 +73,7 @@ def main(argv=None) -> int:
         return 2
 
     start = time.perf_counter()
-    model, rig, card = fitting.fit(
+    model, _rig, card = fitting.fit(
         data, progress=lambda msg: print(msg, file=sys.stderr), recipe=recipe
     )
     card["fit_seconds"] = round(time.perf_counter() - start, 1)

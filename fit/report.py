@@ -141,6 +141,22 @@ def metrics(
     }
 
 
+def artifact_metrics(artifact=None, data: datasets.PaperData | None = None) -> tuple[dict, dict]:
+    """The metrics of a stored surrogate (``artifact``: a shipped name or a path; default the
+    shipped one) recomputed from it and its rig, with the leave-one-out values its fit recorded
+    in its card (25 refits): (metrics, card). What ``python -m fit --report`` prints."""
+    from cardiosoft.pump import load, load_card
+    from fit import fitting
+
+    data = datasets.load_paper_data() if data is None else data
+    model, card = load(artifact), load_card(artifact)
+    rig = fitting.rig_from_card(card)
+    m = metrics(model, rig, data, membrane=card["format_version"] >= 4)
+    for key in ("table1_loo_mae_ml", "peak_force_left_out"):
+        m[key] = card["metrics"][key]
+    return m, card
+
+
 def affine_force_bound(afterload, force) -> float:
     """The smallest worst-case relative error of any force law affine in the afterload.
 
