@@ -419,6 +419,20 @@ def test_report_cli_verdicts_and_exit_code(report_run, card):
         assert line.strip().startswith("[met]" if verdicts[key] else "[NOT MET]"), line
 
 
+def test_the_credibility_report_says_what_the_fit_report_says(report_run, card):
+    """Issue #42: the credibility report's verdict on each of the fit's targets is the one
+    ``python -m fit --report`` prints (its [met] / [NOT MET] lines), label for label."""
+    from cardiosoft.credibility.validation import fit_checks
+
+    printed = {}
+    for line in report_run.stdout.splitlines():
+        verdict, _, rest = line.strip().partition("] ")
+        if verdict in ("[met", "[NOT MET"):
+            printed[rest.rsplit(": ", 1)[0]] = verdict == "[met"
+    checks = {c.name: c.met for c in fit_checks(dict(card["metrics"]))}
+    assert printed and checks == printed
+
+
 def test_out_refuses_to_overwrite(tmp_path):
     out = tmp_path / "artifact.eqx"
     out.write_bytes(b"precious")
