@@ -171,8 +171,8 @@ def prepare_process(tool: str, argv) -> None:
     - sweep, in this process (not with ``--workers`` / ``--scheduler``, whose workers share the
       cores): as many XLA host devices as cores, so that each chunk is sharded over all of them
       (``benchmarks/sweep_throughput.py``, section 4).
-    - simulate, design and sweep: the compile cache (:func:`use_compile_cache`), and in its
-      folder ``programs/`` the exported programs that spare a process the tracing
+    - simulate, design, sweep and credibility: the compile cache (:func:`use_compile_cache`),
+      and in its folder ``programs/`` the exported programs that spare a process the tracing
       (:mod:`cardiosoft.program_store`; :data:`STORE_VARIABLE` switches them off).
 
     An ``XLA_FLAGS`` of the user's own is left as it is.
@@ -185,7 +185,7 @@ def prepare_process(tool: str, argv) -> None:
         if not {"--workers", "--scheduler"} & options:
             count = f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"
             os.environ["XLA_FLAGS"] = f"{flags} {count}".strip()
-    if tool in ("simulate", "design", "sweep"):
+    if tool in ("simulate", "design", "sweep", "credibility"):
         from cardiosoft.program_store import use_program_store
 
         folder = use_compile_cache()  # the next process loads what this one compiles

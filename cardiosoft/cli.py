@@ -40,6 +40,10 @@ COMMANDS = {
     "stress": ("cardiosoft.stress.cli", "the hard-case suite"),
     "geometry": ("cardiosoft.geometry.cli", "the geometrical model's Fig. 7(a) table"),
     "export": ("cardiosoft.network.export", "write a closed-loop scene as an svZeroDSolver model"),
+    "credibility": (
+        "cardiosoft.credibility.cli",
+        "the credibility report (ASME V&V 40): the evidence recomputed, a verdict per check",
+    ),
 }
 """Subcommand: (the module whose ``main(argv, prog)`` it runs, one line of help)."""
 

@@ -26,6 +26,6 @@ def test_the_order_computation_reads_two_for_heun():
     # The same field, the same Richardson sequence, a method of known order 2 (Heun: Euler has
     # no error estimate, which the fixed-step controller needs): a wrong step count, a wrong
     # refinement or a wrong logarithm would not read 2 here and 5 above.
-    run = cv._convergence("bench-dynamic", diffrax.Heun())
+    run = cv.convergence("bench-dynamic", diffrax.Heun())
     assert run["steps"] == [cv.BASE_STEPS * k for k in cv.REFINEMENTS]
     assert run["orders"][-1] == pytest.approx(2.0, abs=0.15), run

@@ -32,7 +32,7 @@ import cardiosoft
 from cardiosoft.credibility.evidence import Check, Section
 from cardiosoft.solve import PERIODIC_SCALES, SolverConfig, integrate, preset
 
-__all__ = ["code_verification"]
+__all__ = ["code_verification", "convergence"]
 
 NOMINAL_ORDER = 5
 """Tsit5's order."""
@@ -97,7 +97,7 @@ def _difference(a: dict, b: dict) -> float:
     return worst
 
 
-def _convergence(name: str, solver=None, base: int = BASE_STEPS) -> dict:
+def convergence(name: str, solver=None, base: int = BASE_STEPS) -> dict:
     """One beat of ``name``'s first member from rest with base * k equal steps, k in
     :data:`REFINEMENTS`. The k N steps are run as k stretches of N steps (the same grid as
     ``fixed_steps=kN`` over the beat): one compile serves every k.
@@ -180,7 +180,7 @@ def code_verification(folder: Path, quick: bool, progress) -> Section:
     runs = {}
     for name in ORDER_SCENES[:1] if quick else ORDER_SCENES:
         progress(f"order of convergence: {name}, {BASE_STEPS} to {8 * BASE_STEPS} steps a beat")
-        runs[name] = run = _convergence(name)
+        runs[name] = run = convergence(name)
         p = run["orders"][-1]  # the finest pair: the one in the asymptotic range
         checks.append(Check(
             f"observed order of Tsit5, {name}", f"{ORDER_BAND[0]} to {ORDER_BAND[1]} (nominal 5)",
@@ -193,7 +193,7 @@ def code_verification(folder: Path, quick: bool, progress) -> Section:
         for name, r in runs.items()
     )
     text.append(
-        "## Observed order of convergence\n\n"
+        "### Observed order of convergence\n\n"
         f"One beat of each scene's first member from rest, on the library's own vector field "
         f"(`cardiosoft.scene_circuit`), integrated by Tsit5 (nominal order {NOMINAL_ORDER}) with "
         f"N = {', '.join(str(n) for n in runs[next(iter(runs))]['steps'])} equal steps "
@@ -234,7 +234,7 @@ def code_verification(folder: Path, quick: bool, progress) -> Section:
         ))  # fmt: skip
         energy_lines.append(f"| {name} (closed loop) | | | {drift:.1e} |")
     text.append(
-        "## Conservation\n\n"
+        "### Conservation\n\n"
         "**Energy.** `solve_beats(..., energy=True)` integrates the beat's energy account with "
         "the states; `energy_residual` is |work in - delivered - lost - stored change| over the "
         "energy carried. Its bound comes from the 'default' tolerance: each step may err by "
@@ -250,7 +250,7 @@ def code_verification(folder: Path, quick: bool, progress) -> Section:
     root = Path(cardiosoft.__file__).resolve().parents[1]
     if quick:
         text.append(
-            "## Closed forms and peers\n\nNot rerun in the quick subset: CI runs these test "
+            "### Closed forms and peers\n\nNot rerun in the quick subset: CI runs these test "
             f"files itself ({', '.join(f'`{f}`' for g in TEST_GROUPS.values() for f in g)}).\n"
         )
     else:
@@ -269,7 +269,7 @@ def code_verification(folder: Path, quick: bool, progress) -> Section:
             files_md = ", ".join(f"`{f}`" for f in files)
             lines.append(f"| {group} | {files_md} | {value} | {seconds:.0f} s |")
         text.append(
-            "## Closed forms and peers\n\nThe project's tests of each block against closed forms "
+            "### Closed forms and peers\n\nThe project's tests of each block against closed forms "
             "(written out in `tests/README.md`), against second implementations in scipy, and "
             "against svZeroDSolver, rerun with `pytest -m 'not slow'` from "
             "the repository root.\n\n| group | files | result | time |\n|---|---|---|---|\n"
