@@ -98,6 +98,7 @@ def rates():
     return solve_beats(contacts, **kwargs), solve_beats(bare, **kwargs)
 
 
+@pytest.mark.slow  # the rates fixture: 100 s of CI's 20 minutes
 def test_where_neither_acts_the_beat_is_the_one_without_them(rates):
     slack, taut = rates
     assert bool(slack.succeeded[0]) and bool(taut.succeeded[0])
@@ -118,6 +119,7 @@ def test_where_neither_acts_the_beat_is_the_one_without_them(rates):
         assert a == pytest.approx(b, rel=1e-6), name
 
 
+@pytest.mark.slow  # the rates fixture: 100 s of CI's 20 minutes
 def test_at_120_bpm_the_cables_slacken_instead_of_pushing(rates):
     slack, taut = rates
     assert float(taut.metrics.min_cable_force[1]) < -5.0  # the taut model's cable pushes
@@ -131,6 +133,7 @@ def test_at_120_bpm_the_cables_slacken_instead_of_pushing(rates):
     assert float(slack.metrics.esv[1]) > float(WallContact().onset)  # the slack alone
 
 
+@pytest.mark.slow  # the rates fixture: 100 s of CI's 20 minutes
 def test_at_120_bpm_and_30_mmhg_the_walls_meet_instead_of_passing_through(rates):
     contacts, bare = rates
     assert float(bare.metrics.esv[2]) < -1 * ml  # the bare chamber's volume goes below zero
@@ -139,6 +142,7 @@ def test_at_120_bpm_and_30_mmhg_the_walls_meet_instead_of_passing_through(rates)
     assert 0.9 < float(contacts.metrics.ejection_fraction[2]) <= 1.0
 
 
+@pytest.mark.slow  # the rates fixture: 100 s of CI's 20 minutes
 def test_with_the_contacts_volume_and_energy_still_close(rates):
     slack, taut = rates
     assert float(jnp.max(slack.volume_drift)) <= 1e-9

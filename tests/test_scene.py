@@ -442,6 +442,7 @@ def effect_runs():
     }
 
 
+@pytest.mark.slow  # effect_runs: five 20-beat runs, 70 s of CI's 20 minutes
 @pytest.mark.parametrize("metric", ["stroke_volume", "mech_work", "peak_force"])
 def test_negligible_effects_agree_with_the_effects_off(effect_runs, metric):
     # Same state vector: the same adaptive steps, agreement to 1e-6. The shell's viscoelasticity

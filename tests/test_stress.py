@@ -577,6 +577,7 @@ def test_main_runs_the_static_scene_in_process(capsys):
     assert rc == 0
 
 
+@pytest.mark.slow  # 115 s of CI's 20 minutes; cardiosoft credibility runs the same suite too
 def test_quick_suite_passes(tmp_path):
     """The CI subset, as CI runs it: no failure that is not a known one; the closed loops'
     members in its report, none failed, and the native heart's passed (inside every band)."""
