@@ -22,9 +22,6 @@ from cardiosoft._cli import add_output_options, command_parser
 
 __all__ = ["main", "parser"]
 
-OUTPUT_FILES = ("index.md", "evidence.json")
-
-
 def parser(prog: str | None = None):
     """The argument parser of ``cardiosoft credibility``."""
     p = command_parser(
@@ -74,14 +71,14 @@ def main(argv=None, prog: str | None = None) -> int:
     jax.config.update("jax_enable_x64", True)
     from cardiosoft._cli import compile_cache_folder
     from cardiosoft.console import fail
-    from cardiosoft.credibility.report import PAGE, compute
+    from cardiosoft.credibility.report import EVIDENCE, PAGE, compute
     from cardiosoft.files import check_writable_folder, refuse_overwrite, write_together
 
     out = Path(args.out) if args.out else None
     try:
         root = source_root()
         if out is not None:
-            for name in OUTPUT_FILES:
+            for name in (PAGE, EVIDENCE):
                 refuse_overwrite(out / name, args.force)
             check_writable_folder(out)
     except ValueError as err:
@@ -111,7 +108,7 @@ def main(argv=None, prog: str | None = None) -> int:
                     for f in s.figures:
                         (staging / f).write_bytes((Path(workdir) / f).read_bytes())
                 (staging / PAGE).write_text(page)
-                (staging / "evidence.json").write_text(json.dumps(report.record(), indent=1))
+                (staging / EVIDENCE).write_text(json.dumps(report.record(), indent=1))
             progress(f"wrote {out / PAGE}")
     if not args.quiet:
         print(page.split("\n## Verdict\n", 1)[1].split("\n## ", 1)[0].strip())

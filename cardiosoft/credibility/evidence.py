@@ -15,7 +15,7 @@ import hashlib
 import json
 from pathlib import Path
 
-__all__ = ["BASES", "Check", "Section", "inputs_digest"]
+__all__ = ["BASES", "Check", "Section", "inputs_digest", "load_stored"]
 
 BASES = ("fitted", "held out", "verification", "no bound")
 """What a check's comparator is: data the model was fitted to, data it never saw, a
@@ -78,7 +78,7 @@ def inputs_digest(root: Path) -> str:
 
 
 def load_stored(path: Path, digest: str) -> dict[str, Section]:
-    """The sections stored at ``path`` (``evidence.json``) under ``digest``; none otherwise."""
+    """The sections stored at ``path`` (a report's record) under ``digest``; none otherwise."""
     try:
         stored = json.loads(path.read_text())
     except (OSError, ValueError):
