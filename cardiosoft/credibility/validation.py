@@ -17,7 +17,7 @@ from pathlib import Path
 
 from cardiosoft.credibility.evidence import Check, Section
 
-__all__ = ["fit_checks", "validation"]
+__all__ = ["BENCH_BOUNDS", "bench_checks", "fit_checks", "validation"]
 
 FIT_REPORT = "python -m fit --report"
 POSTERIOR_CHECK = "python -m fit.posterior --check"
@@ -64,6 +64,61 @@ def _geometry_checks() -> list[Check]:
             abs(model[name] - paper) <= PRINTED_HALF_DIGIT, GEOMETRY,
         ))  # fmt: skip
     return checks
+
+
+BENCH_BOUNDS = (
+    ("dynamic SV within the paper's SD", "dynamic_sv_ml", "ml", "sd", "fitted"),
+    ("dynamic peak force within 10 %", "peak_force_N", "N", 0.10, "held out"),
+    ("dynamic peak force within 5 %", "peak_force_N", "N", 0.05, "held out"),
+    ("efficiency within 0.02", "efficiency", "", 0.02, "fitted"),
+)
+"""Fig. 10 at 30 bpm, the dynamic bench run as ``cardiosoft simulate --bpm 30`` runs it: (name,
+summary key, unit, bound, basis), the bounds of ``tests/test_simulate.py`` (the SD and the
+efficiency's 0.02 absolute: the bench's tube is calibrated to the dynamic SVs and the work; the
+peak forces are not seen by that calibration: 10 % relative, and 5 %, the target its strict
+xfail records as not met)."""
+
+
+def bench_checks(records: list[dict]) -> list[Check]:
+    """:data:`BENCH_BOUNDS` on the summary records (:func:`cardiosoft.summary_records`) of the
+    dynamic bench at 30 bpm, one member per head of Fig. 10 in its order."""
+    from cardiosoft import datasets
+
+    paper = datasets.load_paper_data().fig10_bench
+    heads = ", ".join(f"{float(h):g}" for h in paper["afterload_mmHg"])
+    checks = []
+    for name, key, unit, bound, basis in BENCH_BOUNDS:
+        model = [r[key] for r in records]
+        means = [float(v) for v in paper[key]]
+        if bound == "sd":
+            sds = [float(v) for v in paper[key.replace("_ml", "_sd_ml")]]
+            misses = [abs(a - b) / sd for a, b, sd in zip(model, means, sds, strict=True)]
+            target, met = "|model - paper| <= SD at each head", max(misses) <= 1.0
+            worst = f"worst {max(misses):.2f} SD"
+        elif unit:
+            misses = [abs(a / b - 1) for a, b in zip(model, means, strict=True)]
+            target, met = f"<= {bound:.0%} at each head", max(misses) <= bound
+            worst = f"worst {max(misses):.1%}"
+        else:
+            misses = [abs(a - b) for a, b in zip(model, means, strict=True)]
+            target, met = f"|model - paper| <= {bound:g} at each head", max(misses) <= bound
+            worst = f"worst {max(misses):.3f}"
+        pairs = ", ".join(f"{a:.3g}/{b:.3g}" for a, b in zip(model, means, strict=True))
+        checks.append(Check(
+            f"Fig. 10, 30 bpm: {name}", target,
+            f"{pairs}{' ' + unit if unit else ''} (model/paper at {heads} mmHg); {worst}",
+            basis, met, "cardiosoft simulate --bpm 30 --compare-paper",
+        ))  # fmt: skip
+    return checks
+
+
+def _bench_run() -> list[dict]:
+    from cardiosoft import datasets
+    from cardiosoft.experiment import run
+    from cardiosoft.results import summary_records
+
+    heads = [float(h) for h in datasets.load_paper_data().fig10_bench["afterload_mmHg"]]
+    return summary_records(run("bench-dynamic", bpm=30.0, afterload=heads))
 
 
 def fit_checks(m: dict) -> list[Check]:
@@ -167,7 +222,9 @@ def validation(folder: Path, quick: bool, progress) -> Section:
     m, card = report.artifact_metrics()
     fitted = fit_checks(m)
     posterior_checks, posterior_text = _posterior_checks(quick, progress)
-    checks = [*_geometry_checks(), *fitted, *posterior_checks, *_untargeted(m)]
+    progress("validation: the dynamic bench at 30 bpm against Fig. 10 ...")
+    bench = bench_checks(_bench_run())
+    checks = [*_geometry_checks(), *fitted, *bench, *posterior_checks, *_untargeted(m)]
     text = "\n".join([
         f"The shipped surrogate `{card['name']}` against the paper. *Fitted*: the data the fit "
         "saw (Table I's FEM sweep, the 30-bpm bench's static SVs, peak forces and work); *held "
@@ -177,6 +234,10 @@ def validation(folder: Path, quick: bool, progress) -> Section:
         f"- The fit's targets (`{FIT_REPORT}`): {sum(c.met for c in fitted)} of "
         f"{len(fitted)} met. The paper's SDs enter through the static-SV target (within "
         "the paper's +- SD) and through the bands below.",
+        "- Fig. 10's dynamic bench at the paper's 30 bpm (`cardiosoft simulate --bpm 30 "
+        "--compare-paper`): its SVs and efficiencies were fitted by the bench's calibration, "
+        "its peak forces were not; the 5 % force target is the one recorded as not met "
+        "(issue #39: the dynamic force runs 6 % high at 90 mmHg).",
         f"- {posterior_text}",
         "- The figures of these comparisons are in the notebooks: "
         "[Fig. 7(a)](../notebooks/fig7_apex_motion.ipynb), "
