@@ -49,20 +49,6 @@ def parser(prog: str | None = None):
     return p
 
 
-def source_root() -> Path:
-    """The source checkout this cardiosoft runs from; ``ValueError`` without one."""
-    import cardiosoft
-
-    root = Path(cardiosoft.__file__).resolve().parents[1]
-    if not (root / "fit" / "report.py").is_file() or not (root / "tests").is_dir():
-        raise ValueError(
-            f"credibility: needs a source checkout (fit/ and tests/ beside {root / 'cardiosoft'}); "
-            "this cardiosoft is installed from a wheel: clone the repository and "
-            "pip install -e . there"
-        )
-    return root
-
-
 def main(argv=None, prog: str | None = None) -> int:
     """``cardiosoft credibility``: returns the exit status (module docstring)."""
     args = parser(prog).parse_args(argv)
@@ -71,6 +57,7 @@ def main(argv=None, prog: str | None = None) -> int:
     jax.config.update("jax_enable_x64", True)
     from cardiosoft._cli import compile_cache_folder
     from cardiosoft.console import fail
+    from cardiosoft.credibility.evidence import source_root
     from cardiosoft.credibility.report import EVIDENCE, PAGE, compute
     from cardiosoft.files import check_writable_folder, refuse_overwrite, write_together
 

@@ -15,7 +15,7 @@ import hashlib
 import json
 from pathlib import Path
 
-__all__ = ["BASES", "Check", "Section", "inputs_digest", "load_stored"]
+__all__ = ["BASES", "Check", "Section", "inputs_digest", "load_stored", "source_root"]
 
 BASES = ("fitted", "held out", "verification", "no bound")
 """What a check's comparator is: data the model was fitted to, data it never saw, a
@@ -86,3 +86,17 @@ def load_stored(path: Path, digest: str) -> dict[str, Section]:
     if stored.get("inputs_sha256") != digest:
         return {}
     return {key: Section.from_record(r) for key, r in stored.get("sections", {}).items()}
+
+
+def source_root() -> Path:
+    """The source checkout this cardiosoft runs from; ``ValueError`` without one."""
+    import cardiosoft
+
+    root = Path(cardiosoft.__file__).resolve().parents[1]
+    if not (root / "fit" / "report.py").is_file() or not (root / "tests").is_dir():
+        raise ValueError(
+            f"credibility: needs a source checkout (fit/ and tests/ beside {root / 'cardiosoft'}); "
+            "this cardiosoft is installed from a wheel: clone the repository and "
+            "pip install -e . there"
+        )
+    return root
