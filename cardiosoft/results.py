@@ -311,9 +311,25 @@ def member_results(
     return tuple(out)
 
 
+def block_records(traces: dict) -> dict[str, dict]:
+    """Each block's record of one open-loop member's beat (``traces``: its signals, SI), named
+    as the scene's network names its blocks (:mod:`cardiosoft.network.bench`), in the form every
+    kind of scene gives: the ``pump``'s
+    (:func:`~cardiosoft.network.block_metrics.pump_record`) and the ``afterload``'s, a vessel's
+    (:func:`~cardiosoft.network.block_metrics.vessel_record_si`) at its compliant node (the
+    water column's base, a Windkessel's capacitor: behind the line's valve, tube and
+    resistances) with the mean flow into it."""
+    from cardiosoft.network.block_metrics import pump_record, vessel_record_si
+
+    pump = (traces[k] for k in ("pump_pressure", "volume", "cable_force", "pull"))
+    node = vessel_record_si(traces["node_pressure"], traces["outflow"], traces["time"])
+    return {"pump": pump_record(*pump), "afterload": node}
+
+
 def summary_records(result: RunResult) -> list[dict]:
     """One JSON-ready record per member of an open-loop scene's run, in user units
-    (``summary.json``); :func:`cardiosoft.summary_records` takes any scene's."""
+    (``summary.json``); with traces, ``blocks``: each block's record (:func:`block_records`).
+    :func:`cardiosoft.summary_records` takes any scene's."""
     records = []
     for m in result.members:
         x = m.metrics
@@ -344,8 +360,15 @@ def summary_records(result: RunResult) -> list[dict]:
                 "flags": list(m.flags),
             }
         )
-    # JSON has no NaN: a value that cannot be computed (an efficiency of a zero stroke) is null
-    return [
-        {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in r.items()}
-        for r in records
-    ]
+        if m.traces:
+            records[-1]["blocks"] = block_records(m.traces)
+    return [_finite_or_none(r) for r in records]
+
+
+def _finite_or_none(value):
+    """``value`` with every non-finite float in it (a dict's, a block's record's) as None: JSON
+    has no NaN, and a value that cannot be computed (an efficiency of a zero stroke, a failed
+    member's trace) is null."""
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    return None if isinstance(value, float) and not math.isfinite(value) else value

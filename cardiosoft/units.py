@@ -26,6 +26,8 @@ s = 1.0
 """One second."""
 minute = 60.0
 """One minute in s."""
+l_per_min = 1e-3 / minute
+"""One litre per minute in m^3/s (a cardiac output, a mean flow)."""
 bpm = 1.0 / 60.0
 """One beat per minute in Hz: ``60 * bpm`` is 1 Hz and the period is ``1 / (60 * bpm)`` s."""
 deg = math.pi / 180.0

@@ -17,10 +17,10 @@ from cardiosoft.network import read, simulate
 from cardiosoft.network.block_metrics import block_metrics
 from cardiosoft.network.export import to_svzerod
 from cardiosoft.network.loop_batch import solve_loop
-from cardiosoft.network.loop_records import L_MIN, loop_block_records
+from cardiosoft.network.loop_records import loop_block_records
 from cardiosoft.network.pump_in_model import UNIT_SYSTEMS, PumpPlacement, pump_metrics
 from cardiosoft.solve import preset
-from cardiosoft.units import ml, mmHg
+from cardiosoft.units import l_per_min, ml, mmHg
 
 CASE = Path(__file__).parent / "data" / "svzerod" / "pulsatileFlow_R_RCR.json"
 
@@ -82,7 +82,7 @@ RECORD_KEYS = {  # the loop's record key: the model's key, the scale to the loop
     "pressure_mean_mmHg": ("pressure_mean", P_CGS / mmHg, "systolic"),
     "pressure_systolic_mmHg": ("pressure_systolic", P_CGS / mmHg, "systolic"),
     "pressure_diastolic_mmHg": ("pressure_diastolic", P_CGS / mmHg, "systolic"),
-    "flow_mean_l_min": ("flow_mean", V_CGS / L_MIN, "flow"),
+    "flow_mean_l_min": ("flow_mean", V_CGS / l_per_min, "flow"),
 }
 
 
@@ -116,7 +116,7 @@ def test_a_chambers_and_a_vessels_record_equal_the_closed_loops_metrics():
     # the closed loop's own records (summary.json's blocks) of the same beat, in user units
     records = loop_block_records(own)
     assert set(records) == set(blocks)
-    largest_flow = max(np.max(np.abs(own[k])) for k in own if k.endswith("_flow")) / L_MIN
+    largest_flow = max(np.max(np.abs(own[k])) for k in own if k.endswith("_flow")) / l_per_min
     for name, record in records.items():
         for key, value in record.items():
             theirs, scale, size = RECORD_KEYS[key]
@@ -197,3 +197,64 @@ def test_a_pump_that_does_no_cable_work_has_no_efficiency():
     )
     assert record["cable_work_J"] == 0.0 and record["efficiency"] is None
     assert record["stroke_volume_ml"] == pytest.approx(200.0)
+
+
+def _trapezoid(y, x):
+    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(x)))
+
+
+def _halving_error(y, x):
+    """|T(h) - T(2h)|, the trapezoid rule on every sample against every other: its error on a
+    kinked signal (first order) and three times Richardson's estimate on a smooth one (second
+    order), so a bound of T(h)'s error in both."""
+    return abs(_trapezoid(y, x) - _trapezoid(y[::2], x[::2]))
+
+
+def test_an_open_loops_afterload_record_holds_the_windkessels_balance():
+    """``lv-systemic``'s ``blocks``: the Windkessel's record at its capacitor (``C dpc/dt = q -
+    (pc - p_venous) / Rd``) has the mean inflow (mean pc - p_venous) / Rd + C (pc(T) - pc(0)) /
+    T over the beat. Bound: both means' trapezoid error (:func:`_halving_error`) through the
+    balance."""
+    result = cs.run("lv-systemic")
+    record = cs.summary_records(result)[0]
+    afterload, pump = record["blocks"]["afterload"], record["blocks"]["pump"]
+    _, c, rd = result.scene.windkessel  # SI
+    p_venous = result.scene.venous_pressure
+    traces = result.members[0].traces
+    t, pc, q = traces["time"], traces["pc"], traces["outflow"]
+    period = t[-1] - t[0]
+    balance = ((afterload["pressure_mean_mmHg"] * mmHg - p_venous) / rd
+               + c * (pc[-1] - pc[0]) / period)  # fmt: skip
+    bound = (_halving_error(pc, t) / rd + _halving_error(q, t)) / period
+    assert abs(afterload["flow_mean_l_min"] * l_per_min - balance) <= bound
+    assert afterload["pressure_diastolic_mmHg"] < afterload["pressure_mean_mmHg"]
+    assert pump["stroke_volume_ml"] == pytest.approx(record["edv_ml"] - record["esv_ml"])
+
+
+def test_an_open_loops_pump_record_has_the_cable_work_of_the_energy_account():
+    """The bench's ``blocks``' pump: its cable work (the trapezoid rule's closed integral of F dx
+    over the beat's samples) equals the energy account's work in (``energy=True``: F dx/dt
+    integrated by the solver with the state), at each afterload. Bound: the trapezoid's error
+    (:func:`_halving_error`) plus 10 rtol of the work, the solver's."""
+    result = cs.run("bench-dynamic", energy=True)
+    rtol = cs.scene_tools.tools(result.scene).preset(result.scene).rtol
+    for member, record in zip(result.members, cs.summary_records(result), strict=True):
+        pump = record["blocks"]["pump"]
+        work_in = member.metrics["work_in"]
+        bound = _halving_error(member.traces["cable_force"], member.traces["pull"])
+        assert abs(pump["cable_work_J"] - work_in) <= bound + 10 * rtol * abs(work_in)
+        assert pump["peak_force_N"] == record["peak_force_N"]
+
+
+def test_a_closed_loops_pump_block_has_the_pumps_numbers():
+    """``soft-lv``'s ``blocks``: the pump in place of the left ventricle has a pump's record (its
+    forces and works, :func:`~cardiosoft.network.block_metrics.pump_record`), equal to the
+    side's numbers the closed loop computes in JAX from the same samples; the native chambers
+    keep a chamber's record."""
+    record = cs.summary_records(cs.run("soft-lv"))[0]
+    lv, rv = record["blocks"]["lv"], record["blocks"]["rv"]
+    for key, side in (("peak_force_N", "peak_force_N"), ("cable_work_J", "cable_work_J"),
+                      ("stroke_work_J", "stroke_work_J"), ("efficiency", "efficiency"),
+                      ("stroke_volume_ml", "sv_ml")):  # fmt: skip
+        assert lv[key] == pytest.approx(record[f"left_{side}"], rel=1e-9), key
+    assert "peak_force_N" not in rv and set(rv) >= {"edv_ml", "stroke_volume_ml"}

@@ -12,8 +12,7 @@ record with per-block metrics), from its traces, in the model's own units.
 Means are the trapezoid rule's over the reported time, divided by its span: over one whole beat
 (svZeroDSolver reports the last beat, both ends included), the time mean of the beat. A closed
 loop's coronaries inside its combined heart block have no record of their own. The soft pump's
-own numbers (its force and work, in SI) are :func:`cardiosoft.network.pump_in_model.
-pump_metrics`'.
+own numbers are :func:`pump_record`'s, the same in every kind of scene.
 """
 
 from __future__ import annotations
@@ -48,6 +47,46 @@ def vessel_record(pressure, flow, time) -> dict:
     pressure = np.asarray(pressure, dtype=float)
     numbers = (time_mean(pressure, time), pressure.max(), pressure.min(), time_mean(flow, time))
     return dict(zip(VESSEL_KEYS, map(float, numbers), strict=True))
+
+
+def vessel_record_si(pressure, flow, time) -> dict:
+    """:func:`vessel_record` of SI samples (Pa, m^3/s, s) in user units, each key naming its
+    unit: ``pressure_mean_mmHg``, ``pressure_systolic_mmHg``, ``pressure_diastolic_mmHg``,
+    ``flow_mean_l_min``."""
+    from cardiosoft.units import l_per_min, mmHg
+
+    record = vessel_record(np.asarray(pressure) / mmHg, np.asarray(flow) / l_per_min, time)
+    units = ("mmHg", "mmHg", "mmHg", "l_min")
+    return {f"{k}_{unit}": v for (k, v), unit in zip(record.items(), units, strict=True)}
+
+
+def pump_record(pressure, volume, force, pull) -> dict:
+    """A soft pump's beat from its samples over one whole beat (both ends), SI: ``pressure``
+    (Pa), ``volume`` (m^3), cable ``force`` (N) and ``pull`` (m). In user units: its end-diastolic
+    and end-systolic volumes and stroke volume (ml), ejection fraction, peak and lowest cable
+    force (N), lowest and highest pressure (mmHg), the cables' net work over the beat (the closed
+    integral of F dx, J), the stroke work (the pressure-volume loop's area, -(closed integral of
+    p dV), J) and their ratio, the pump's efficiency (hydraulic work out over the cables' work in;
+    None when the cables do no work). Every kind of scene makes its pump's record here."""
+    from cardiosoft.units import ml, mmHg
+
+    pressure, force = np.asarray(pressure, dtype=float), np.asarray(force, dtype=float)
+    beat = chamber_record(np.asarray(volume, dtype=float) / ml)
+    cable_work = closed_integral(force, pull)
+    stroke_work = -closed_integral(pressure, volume)
+    return {
+        "edv_ml": beat["edv"],
+        "esv_ml": beat["esv"],
+        "stroke_volume_ml": beat["stroke_volume"],
+        "ejection_fraction": beat["ejection_fraction"],
+        "peak_force_N": float(force.max()),
+        "min_force_N": float(force.min()),
+        "min_pressure_mmHg": float(pressure.min() / mmHg),
+        "max_pressure_mmHg": float(pressure.max() / mmHg),
+        "cable_work_J": cable_work,
+        "stroke_work_J": stroke_work,
+        "efficiency": stroke_work / cable_work if cable_work else None,
+    }
 
 
 def block_metrics(network, traces) -> dict[str, dict]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import math
 
-from cardiosoft.network.block_metrics import VESSEL_KEYS, chamber_record, vessel_record
-from cardiosoft.units import ml, mm, mmHg
+from cardiosoft.network.block_metrics import chamber_record, pump_record, vessel_record_si
+from cardiosoft.units import l_per_min, ml, mm, mmHg
 
 __all__ = [
     "LOOP_NUMBERS", "PUMP_NUMBERS", "SIDE_NUMBERS", "banded_keys", "loop_band_table",
@@ -19,8 +19,6 @@ def _none_if_nan(value):
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
-L_MIN = 1000 * ml / 60.0
-"""One l/min in m^3/s."""
 # One record's numbers, each once: (record key with {side}, {artery}, {atrium}; the side's
 # LoopMetrics field; scale to the unit; unit; long name). summary.json's records and a sweep's
 # variables (closed_loop_tools.sweep_variables) are both made from them.
@@ -29,8 +27,8 @@ SIDE_NUMBERS = (
     ("{side}_edv_ml", "edv", ml, "ml", "end-diastolic (largest) ventricular volume"),
     ("{side}_esv_ml", "esv", ml, "ml", "end-systolic (smallest) ventricular volume"),
     ("{side}_ef", "ejection_fraction", 1.0, "1", "ejection fraction SV / EDV"),
-    ("{side}_co_l_min", "cardiac_output", L_MIN, "l/min", "cardiac output SV / period"),
-    ("{side}_net_output_l_min", "net_output", L_MIN, "l/min",
+    ("{side}_co_l_min", "cardiac_output", l_per_min, "l/min", "cardiac output SV / period"),
+    ("{side}_net_output_l_min", "net_output", l_per_min, "l/min",
      "mean flow out of the arterial compartment into the circulation"),
     ("{artery}_systolic_mmHg", "arterial_systolic", mmHg, "mmHg", "largest arterial pressure"),
     ("{artery}_diastolic_mmHg", "arterial_diastolic", mmHg, "mmHg",
@@ -72,23 +70,24 @@ def record_numbers(sides=("left", "right"), *, pumps=("left", "right")) -> dict:
 def loop_block_records(traces: dict) -> dict[str, dict]:
     """Each chamber's and vessel's record of one member's reported beat (``traces``: its
     signals, SI), as an svZeroDSolver model's (:func:`cardiosoft.network.block_metrics.
-    block_metrics`) but in user units: a chamber's EDV, ESV, SV (ml) and EF; a vessel's mean,
-    systolic and diastolic pressure (mmHg) and its inlet's mean flow (l/min: the valve's or
+    block_metrics`) but in user units: a chamber's EDV, ESV, SV (ml) and EF, a soft pump's with
+    its forces and works too (:func:`~cardiosoft.network.block_metrics.pump_record`); a vessel's
+    mean, systolic and diastolic pressure (mmHg) and its inlet's mean flow (l/min: the valve's or
     vessel's before it)."""
     from cardiosoft.network.closed_loop import CHAMBERS, NODES, VESSELS
 
-    def named(record, units):  # a key with its unit's name
-        return {f"{k}_{units[k]}" if units.get(k) else k: v for k, v in record.items()}
-
     out = {}
     for c in CHAMBERS:
+        if f"{c}_cable_force" in traces:  # a soft pump
+            signals = (f"{c}_pressure", f"{c}_volume", f"{c}_cable_force", f"{c}_pull")
+            out[c] = pump_record(*(traces[k] for k in signals))
+            continue
         beat = chamber_record(traces[f"{c}_volume"] / ml)
-        out[c] = named(beat, dict.fromkeys(("edv", "esv", "stroke_volume"), "ml"))
+        out[c] = {f"{k}_ml" if k != "ejection_fraction" else k: v for k, v in beat.items()}
     for v in VESSELS:
         inlet = next(up for up, down in NODES if down == v)
-        pressure, flow = traces[f"{v}_pressure"] / mmHg, traces[f"{inlet}_flow"] / L_MIN
-        units = dict.fromkeys(VESSEL_KEYS[:3], "mmHg") | {"flow_mean": "l_min"}
-        out[v] = named(vessel_record(pressure, flow, traces["time"]), units)
+        pressure, flow = traces[f"{v}_pressure"], traces[f"{inlet}_flow"]
+        out[v] = vessel_record_si(pressure, flow, traces["time"])
     return out
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
-from cardiosoft.network.block_metrics import chamber_record, closed_integral
+from cardiosoft.network.block_metrics import pump_record
 from cardiosoft.network.blocks import Block
 from cardiosoft.network.loop_components import PumpChamber
 from cardiosoft.pump import Domain, load
@@ -160,29 +160,9 @@ def pump_beat(traces, placement: PumpPlacement, nodes) -> tuple[np.ndarray, ...]
 
 
 def pump_metrics(traces, placement: PumpPlacement, nodes) -> dict:
-    """The pump's beat from ``traces`` (the reported samples, one whole beat): its end-diastolic
-    and end-systolic volumes and stroke volume (ml), ejection fraction, peak cable force (N),
-    its lowest and highest pressure (mmHg; ``nodes``: the network's, to find its inlet), the
-    cables' work over the beat (the closed integral of F dx, J), the stroke work (the
-    pressure-volume loop's area, -(closed integral of p dV), J) and their ratio, the pump's
-    efficiency (hydraulic work out over the cables' work in)."""
-    pressure, volume, force, pull = pump_beat(traces, placement, nodes)
-    beat = chamber_record(volume / ml)
-    cable_work = closed_integral(force, pull)
-    stroke_work = -closed_integral(pressure, volume)
-    return {
-        "edv_ml": beat["edv"],
-        "esv_ml": beat["esv"],
-        "stroke_volume_ml": beat["stroke_volume"],
-        "ejection_fraction": beat["ejection_fraction"],
-        "peak_force_N": float(force.max()),
-        "min_force_N": float(force.min()),
-        "min_pressure_mmHg": float(pressure.min() / mmHg),
-        "max_pressure_mmHg": float(pressure.max() / mmHg),
-        "cable_work_J": cable_work,
-        "stroke_work_J": stroke_work,
-        "efficiency": stroke_work / cable_work if cable_work else None,  # None: no work in
-    }
+    """The pump's beat from ``traces`` (the reported samples, one whole beat; ``nodes``: the
+    network's, to find its inlet): :func:`~cardiosoft.network.block_metrics.pump_record`."""
+    return pump_record(*pump_beat(traces, placement, nodes))
 
 
 def pump_flags(metrics: dict) -> list[str]:
