@@ -1,6 +1,7 @@
 """Our network next to svZeroDSolver on its closed-loop heart case, at equal accuracy.
 
     python benchmarks/svzerod_heart.py [--variants 1000] [--loop 1000]   # ~10 min on 2 cores
+    python benchmarks/svzerod_heart.py --loop 100 --figure docs/figures/wp_heart.png  # the site
 
 The case is upstream's ``closedLoopHeart_singleVessel`` (``tests/data/svzerod/``): the combined
 heart block, an aorta and a closed-loop RCR, 10 beats from its initial condition. Its converged
@@ -11,7 +12,8 @@ valve's flow is 0 here and its inductor's drift in svzerod, see ``tests/test_net
 
 Prints:
 
-1. the work-precision table of both solvers (and ``work_precision_svzerod_heart.png``):
+1. the work-precision table of both solvers (and its diagram, ``--figure``, by default
+   ``work_precision_svzerod_heart.png`` in the current folder):
    ``svzerod`` at 1, 2, 4, ... times the case's points a beat, ours at a range of rtol, each
    with its error and its wall time per run (warm: compiled, in-process; the best of 3);
 2. the wall time per beat of one model at an error of 1e-4, each solver at the cheapest
@@ -96,6 +98,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--variants", type=int, default=1000)
     parser.add_argument("--loop", type=int, default=1000, help="svzerod runs to time")
+    parser.add_argument(
+        "--figure", default="work_precision_svzerod_heart.png", help="the diagram's file"
+    )
     args = parser.parse_args()
     config = json.loads(CASE.read_text())
     beats = config["simulation_parameters"]["number_of_cardiac_cycles"]
@@ -116,7 +121,7 @@ def main() -> None:
         seconds, traces = best_of(lambda r=rtol: network.simulate(model, rtol=r))
         our_rows.append((rtol, error(traces.values, reference), seconds))
         print(f"{'ours':10s} {f'rtol {rtol:g}':>14s} {our_rows[-1][1]:10.2e} {seconds:10.4f}")
-    plot(svz_rows, our_rows)
+    plot(svz_rows, our_rows, Path(args.figure))
 
     svz_at = next(r for r in svz_rows if r[1] <= TARGET)
     ours_at = next(r for r in our_rows if r[1] <= TARGET)
@@ -147,7 +152,7 @@ def main() -> None:
     print(f"  ratio svzerod / ours:   {svz_seconds / ours_seconds:.1f}")
 
 
-def plot(svz_rows, our_rows) -> None:
+def plot(svz_rows, our_rows, out: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -162,7 +167,6 @@ def plot(svz_rows, our_rows) -> None:
     ax.set_title("closedLoopHeart_singleVessel")
     ax.legend()
     fig.tight_layout()
-    out = Path("work_precision_svzerod_heart.png")
     fig.savefig(out, dpi=120)
     print(f"wrote {out}")
 
