@@ -104,6 +104,16 @@ def _compliance(m, x, omega, p):
     return dvdp, 1.0 / m.stiffness(m.volume(p, x, omega), x, omega)
 
 
+@eqx.filter_jit
+def _compliances(m, x, omega, ps):
+    """:func:`_compliance` and the volume at each pressure of ``ps``, in one program."""
+
+    def one(p):
+        return *_compliance(m, x, omega, p), m.volume(p, x, omega)
+
+    return jax.vmap(one)(ps)
+
+
 def _sv(m, omega, c, p, k):
     stroke = c * m.cable_length(omega)
     return quasi_static_stroke(m, omega, stroke, p, k, n_points=11).stroke_volume
@@ -307,13 +317,10 @@ def test_folded_chamber_is_more_compliant_and_stiffens(v3):
     comp = {}
     for c in (0.0, 0.4):
         x = c * length
-        out = [_compliance(v3, x, omega, p) for p in ps]
-        dvdp = np.array([float(a) for a, _ in out])
-        inverse = np.array([float(b) for _, b in out])
+        dvdp, inverse, volumes = map(np.asarray, _compliances(v3, x, omega, ps))
         np.testing.assert_allclose(dvdp, inverse, rtol=1e-10)
         e = float(v3.chamber_elastance(x, omega))
         closed = 1.0 / np.sqrt(e**2 + beta**2 * ps**2)
-        volumes = np.array([float(v3.volume(p, x, omega)) for p in ps])
         # no folds at C = 0: nothing to undo, the closed form holds at every pressure
         unswollen = (volumes < v_ref - 10 * SWELLING_WIDTH) | (c == 0.0)
         assert unswollen.sum() >= 10, c
