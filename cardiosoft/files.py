@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import math
 import os
 import shutil
 import tempfile
@@ -16,10 +17,22 @@ from pathlib import Path
 __all__ = [
     "atomic_path",
     "check_writable_folder",
+    "json_ready",
     "refuse_overwrite",
     "sha256",
     "write_together",
 ]
+
+
+def json_ready(value):
+    """``value`` with every non-finite float in it (inside dicts, lists and tuples, which
+    become lists) as None: JSON has no NaN, and a number that could not be computed (an
+    efficiency of a zero stroke, a failed member's trace) is null."""
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_ready(v) for v in value]
+    return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
 def refuse_overwrite(path, force: bool) -> None:

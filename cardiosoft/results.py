@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from cardiosoft.batch import BeatSolution, StaticSolution
+from cardiosoft.files import json_ready
 from cardiosoft.metrics import BeatMetrics
 from cardiosoft.pump import Domain
 from cardiosoft.scene import Scene
@@ -362,13 +363,5 @@ def summary_records(result: RunResult) -> list[dict]:
         )
         if m.traces:
             records[-1]["blocks"] = block_records(m.traces)
-    return [_finite_or_none(r) for r in records]
+    return json_ready(records)
 
-
-def _finite_or_none(value):
-    """``value`` with every non-finite float in it (a dict's, a block's record's) as None: JSON
-    has no NaN, and a value that cannot be computed (an efficiency of a zero stroke, a failed
-    member's trace) is null."""
-    if isinstance(value, dict):
-        return {k: _finite_or_none(v) for k, v in value.items()}
-    return None if isinstance(value, float) and not math.isfinite(value) else value

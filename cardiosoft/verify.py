@@ -42,6 +42,7 @@ import jax
 import numpy as np
 
 from cardiosoft.batch import StaticSolution, default_config, solve_beats, solve_static
+from cardiosoft.files import json_ready
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.results import RunResult, member_results, summary_records
 from cardiosoft.units import mmHg
@@ -100,16 +101,7 @@ class Verification:
     def record(self) -> dict:
         """JSON-ready (NaN as ``None``): the ``"verification"`` entry of ``summary.json``."""
 
-        def clean(x):
-            if isinstance(x, dict):
-                return {k: clean(v) for k, v in x.items()}
-            if isinstance(x, list | tuple):
-                return [clean(v) for v in x]
-            if isinstance(x, float) and not math.isfinite(x):
-                return None
-            return x
-
-        return clean(
+        return json_ready(
             {
                 "kind": "calculation verification (ASME V&V 40): the run against a tighter rerun",
                 "scene": self.scene,

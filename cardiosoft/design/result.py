@@ -5,8 +5,8 @@ the :class:`ParetoPoint` s of a Pareto trace, with the JSON record that ``design
 from __future__ import annotations
 
 import dataclasses
-import math
 
+from cardiosoft.files import json_ready
 from cardiosoft.results import RunResult
 from cardiosoft.scene import Scene
 
@@ -139,15 +139,6 @@ class DesignResult:
         """A JSON-ready record (user units): what ``design.json`` holds. JSON has no NaN: a
         number that could not be computed is null."""
 
-        def clean(v):
-            if isinstance(v, float) and not math.isfinite(v):
-                return None
-            if isinstance(v, dict):
-                return {k: clean(x) for k, x in v.items()}
-            if isinstance(v, list | tuple):
-                return [clean(x) for x in v]
-            return v
-
         targets = [
             {
                 "afterload_mmHg": t.afterload_mmHg,
@@ -191,4 +182,4 @@ class DesignResult:
         }
         if self.pareto is not None:
             out["pareto"] = [dataclasses.asdict(p) for p in self.pareto]
-        return clean(out)
+        return json_ready(out)

@@ -3,8 +3,7 @@ the columns of ``traces.csv`` (:mod:`cardiosoft.network.loop_results` makes the 
 
 from __future__ import annotations
 
-import math
-
+from cardiosoft.files import json_ready
 from cardiosoft.network.block_metrics import chamber_record, pump_record, vessel_record_si
 from cardiosoft.units import l_per_min, ml, mm, mmHg
 
@@ -13,10 +12,6 @@ __all__ = [
     "loop_block_records", "loop_summary_records", "loop_table", "loop_trace_columns",
     "record_numbers",
 ]  # fmt: skip
-
-
-def _none_if_nan(value):
-    return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
 # One record's numbers, each once: (record key with {side}, {artery}, {atrium}; the side's
@@ -112,11 +107,10 @@ def loop_summary_records(result) -> list[dict]:
             "message": m.message,
             "flags": list(m.flags),
         }
-        record = {k: _none_if_nan(v) for k, v in record.items()}
         if m.traces is not None:
             record["blocks"] = loop_block_records(m.traces)
         records.append(record)
-    return records
+    return json_ready(records)
 
 
 def banded_keys(pump_sides) -> tuple[str, ...]:
