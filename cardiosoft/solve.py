@@ -30,6 +30,7 @@ __all__ = [
     "PRESETS",
     "Beats",
     "SolverConfig",
+    "in_phase",
     "integrate",
     "periodic_beats",
     "preset",
@@ -296,8 +297,10 @@ class Beats(eqx.Module):
     """Newton iterations of :func:`cardiosoft.shooting.shoot_periodic` (0 beat after beat)."""
 
 
-def _in_phase(s, y, args):
-    """dy/ds = T f(s T, y): the vector field ``f`` in the phase s = t / T of a beat of period T."""
+def in_phase(s, y, args):
+    """dy/ds = T f(s T, y): the vector field ``f`` in the phase s = t / T of a beat of period T
+    (``args``: ``(f, T)``; ``f(t, y, None)`` as diffrax calls a field): every beat is integrated
+    in it, over s in [0, 1]."""
     field, period = args
     return jax.tree_util.tree_map(lambda d: period * d, field(s * period, y, None))
 
@@ -307,7 +310,7 @@ def _one_beat(field, period, y, save_ts, jump_ts, config):
     # end-of-interval bookkeeping (t1 minus 100 ULP, ~1500 HLO ops per member) folds away at
     # compile time, while the period stays an array leaf (a new bpm does not recompile).
     return integrate(
-        _in_phase, y, 0.0, 1.0, args=(field, period), ts=save_ts,
+        in_phase, y, 0.0, 1.0, args=(field, period), ts=save_ts,
         jump_ts=None if jump_ts is None else jump_ts / period, config=config,
     )
 

@@ -14,7 +14,7 @@ import pytest
 
 import cardiosoft as cs
 from cardiosoft.network import read, simulate
-from cardiosoft.network.block_metrics import block_metrics
+from cardiosoft.network.block_metrics import block_metrics, closed_integral
 from cardiosoft.network.export import to_svzerod
 from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.network.loop_records import loop_block_records
@@ -199,15 +199,11 @@ def test_a_pump_that_does_no_cable_work_has_no_efficiency():
     assert record["stroke_volume_ml"] == pytest.approx(200.0)
 
 
-def _trapezoid(y, x):
-    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(x)))
-
-
 def _halving_error(y, x):
     """|T(h) - T(2h)|, the trapezoid rule on every sample against every other: its error on a
     kinked signal (first order) and three times Richardson's estimate on a smooth one (second
     order), so a bound of T(h)'s error in both."""
-    return abs(_trapezoid(y, x) - _trapezoid(y[::2], x[::2]))
+    return abs(closed_integral(y, x) - closed_integral(y[::2], x[::2]))
 
 
 def test_an_open_loops_afterload_record_holds_the_windkessels_balance():

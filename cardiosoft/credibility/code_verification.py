@@ -30,7 +30,7 @@ import jax.numpy as jnp
 
 import cardiosoft
 from cardiosoft.credibility.evidence import Check, Section, source_root
-from cardiosoft.solve import PERIODIC_SCALES, SolverConfig, integrate, preset
+from cardiosoft.solve import PERIODIC_SCALES, SolverConfig, in_phase, integrate, preset
 
 __all__ = ["code_verification", "convergence"]
 
@@ -67,18 +67,12 @@ TEST_GROUPS = {
 SOURCE = "python -m cardiosoft.credibility"
 
 
-def _phase_field(s, y, args):
-    # the batch solve's way: a beat in its phase s = t / T over [0, 1] (dy/ds = T f(sT, y))
-    circuit, period = args
-    return jax.tree_util.tree_map(lambda d: period * d, circuit(s * period, y))
-
-
 @eqx.filter_jit
 def _stretch(circuit, y, s0, s1, solver, steps: int):
     """The state at phase s1 from y at s0, in ``steps`` equal steps (cut at the pull's kinks)."""
     period = circuit.actuation.period
     sol = integrate(
-        _phase_field, y, s0, s1, args=(circuit, period),
+        in_phase, y, s0, s1, args=(circuit, period),
         jump_ts=circuit.actuation.kink_times(1) / period,
         config=SolverConfig(solver, fixed_steps=steps),
     )  # fmt: skip
