@@ -28,11 +28,16 @@ Every kind of scene answers the same questions through its own namespace
 - ``uncertainty(scene, posterior, *, beats, steady)``: ``--uncertainty``'s bands per member
   (``{record key: Band}``), the first failed draw's message per member, the draws solved and
   summary.json's words on the band (``holds``: what it holds).
+- ``verified(scene)``, ``verify_rerun(result, config, *, beats, steady, pump)``: the record numbers
+  ``--verify`` checks, ``(key, name, unit)``, and the run's members solved again at ``config``
+  (:func:`cardiosoft.verify_run`): the rerun's :class:`~cardiosoft.results.RunResult`, the run's
+  and the rerun's settings in words, and whether every member's rerun succeeded.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
+import math
 
 import numpy as np
 
@@ -47,14 +52,17 @@ from cardiosoft.results import (
     summary_records,
 )
 from cardiosoft.scene import ACCURACY, ADDABLE_EFFECTS, RANGES, Scene
+from cardiosoft.solve import rerun_settings
 from cardiosoft.units import mmHg
 
 __all__ = [
     "ABILITIES", "addable_effects", "column_heads", "configure", "design", "heading",
     "member_count", "plot", "preset", "run", "simulate_members", "solve_beats",
     "summary_records", "sweep_flags", "sweep_panels", "sweep_variables", "table",
-    "trace_columns", "uncertainty", "unsupported",
+    "trace_columns", "uncertainty", "unsupported", "verified", "verify_rerun",
 ]  # fmt: skip
+# The namespace's names (every kind answers them). Also here, an open loop's own:
+# VERIFIED, STATIC_POINTS, STATIC_GRID_REFINEMENT, fine_static (cardiosoft.verify names them).
 ABILITIES = (
     "compare_paper", "verify", "uncertainty", "bench_bands", "designs", "export", "energy",
     "pump_design", "loop_design",
@@ -284,3 +292,79 @@ def uncertainty(scene: Scene, posterior, *, beats=None, steady="beats"):
         "posterior card 'discrepancy'",
     }
     return bands, ens.messages, int(ens.ok.shape[0]), about
+
+
+VERIFIED = (
+    ("static_sv_ml", "static SV", "ml"),
+    ("dynamic_sv_ml", "dynamic SV", "ml"),
+    ("peak_force_N", "peak force", "N"),
+    ("mech_work_J", "mech. work", "J"),
+    ("efficiency", "efficiency", "-"),
+    ("ef", "EF", "-"),
+    ("edv_ml", "EDV", "ml"),
+    ("esv_ml", "ESV", "ml"),
+    ("cardiac_output_l_min", "cardiac output", "l/min"),
+)
+"""The numbers of :func:`~cardiosoft.results.summary_records` that ``--verify`` checks:
+(key, name, unit)."""
+STATIC_POINTS = 401
+"""Points of the pull grid of :func:`cardiosoft.solve_static` (its ``quasi_static_stroke``)."""
+STATIC_GRID_REFINEMENT = 10
+"""The quasi-static check's pull grid: this many times finer than the run's."""
+
+
+def verified(scene: Scene) -> tuple[tuple[str, str, str], ...]:
+    return VERIFIED
+
+
+def fine_static(scene: Scene, pump, afterload, n_points: int):
+    """Quasi-static strokes of ``scene``'s members at ``afterload`` (Pa) on ``n_points``."""
+    return solve_static(scene, afterload=afterload, pump=pump, n_points=n_points)
+
+
+def _check_run_members(result: RunResult) -> None:
+    """``result`` must be a :func:`cardiosoft.run` of its scene: one member per afterload."""
+    scene = result.scene
+    heads = [m.afterload for m in result.members]
+    expected = list(scene.afterloads) if scene.afterload.has_heads else [None]
+    same = len(heads) == len(expected) and all(
+        (h is None and e is None) or (h is not None and e is not None and math.isclose(h, e))
+        for h, e in zip(heads, expected, strict=False)
+    )
+    if not same:
+        raise ValueError(
+            "verify: result is not a cardiosoft.run() of its scene (one member per afterload); "
+            "a run_designs() of several designs is not supported"
+        )
+
+
+def verify_rerun(result: RunResult, config, *, beats=None, steady="beats", pump=None):
+    """The members of ``result`` solved again (the namespace's ``verify_rerun``): the dynamic
+    beats at ``config``, the quasi-static strokes on a pull grid :data:`STATIC_GRID_REFINEMENT`
+    times finer (a water column's members)."""
+    import jax
+
+    scene = result.scene
+    _check_run_members(result)
+    labels = [m.label for m in result.members]
+    heads = None
+    if scene.afterload.has_heads:
+        heads = np.array([m.afterload for m in result.members], dtype=float)
+    fine = STATIC_GRID_REFINEMENT * (STATIC_POINTS - 1) + 1
+    static = None if heads is None else fine_static(scene, pump, heads, fine)
+    if scene.static:
+        dynamic = None
+        settings = (f"quasi-static pull, {STATIC_POINTS} points",
+                    f"quasi-static pull, {fine} points")  # fmt: skip
+    else:
+        dynamic = solve_beats(
+            scene, afterload=heads, beats=beats, steady=steady, pump=pump, config=config
+        )
+        settings = rerun_settings(scene.accuracy, default_config(scene), config)
+        if static is not None:
+            settings = (settings[0], f"{settings[1]}; quasi-static pulls on "
+                        f"{STATIC_GRID_REFINEMENT}x the points")  # fmt: skip
+    jax.block_until_ready((static, dynamic))
+    succeeded = dynamic is None or bool(np.all(np.asarray(dynamic.succeeded)))
+    reference = RunResult(scene, member_results(labels, dynamic, static))
+    return reference, *settings, succeeded

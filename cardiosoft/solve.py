@@ -28,12 +28,15 @@ __all__ = [
     "ACCURACY_PRESETS",
     "PERIODIC_SCALES",
     "PRESETS",
+    "TIGHTER",
     "Beats",
     "SolverConfig",
+    "describe",
     "in_phase",
     "integrate",
     "periodic_beats",
     "preset",
+    "rerun_settings",
     "respond",
 ]
 
@@ -86,6 +89,25 @@ on an RC decay at rtol 1e-10), although Dopri8 is more accurate at its own steps
 
 ACCURACY_PRESETS: tuple[str, ...] = tuple(PRESETS)
 """The names of the presets, ``("fast", "default", "reference")``: the accuracy a scene asks for."""
+
+
+TIGHTER = 100.0
+"""A run at ``"reference"`` already is verified at ``rtol`` and ``atol`` this many times tighter
+(:func:`cardiosoft.verify_run`)."""
+
+
+def describe(config: SolverConfig) -> str:
+    """A configuration in words: solver, rtol, atol."""
+    name = type(config.solver).__name__
+    return f"{name}, rtol {float(config.rtol):.0e}, atol {float(config.atol):.0e}"
+
+
+def rerun_settings(accuracy: str, run: SolverConfig, reference: SolverConfig) -> tuple[str, str]:
+    """A run at preset ``accuracy`` (its configuration ``run``) and its verifying rerun at
+    ``reference``, in words (:func:`cardiosoft.verify_run`'s ``run_setting`` and
+    ``reference_setting``)."""
+    which = "preset 'reference'" if accuracy != "reference" else f"{TIGHTER:g}x tighter"
+    return f"preset {accuracy!r}: {describe(run)}", f"{which}: {describe(reference)}"
 
 
 def preset(name: str, stiff: bool = False) -> SolverConfig:

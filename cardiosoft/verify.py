@@ -15,12 +15,13 @@ error; it is a good estimate when the rerun's own error is much smaller, which
 ``notebooks/accuracy.ipynb`` (and ``python benchmarks/work_precision.py``) measure for every
 shipped scene.
 
-What is rerun:
+What is rerun (by the scene's kind, :func:`cardiosoft.scene_tools.tools`' ``verify_rerun``; the
+numbers checked are its ``verified``):
 
-- **dynamic scenes**: the same members, beats and stopping rule (the periodic steady state, or
-  exactly ``beats`` beats), solved at the ``"reference"`` preset (:func:`cardiosoft.preset`,
-  stiff when the scene has valves). A run that is at ``"reference"`` already is rerun with
-  ``rtol`` and ``atol`` 100 times tighter still.
+- **dynamic scenes**, open loops and closed loops alike: the same members, beats and stopping
+  rule (the periodic steady state, or exactly ``beats`` beats), solved at the ``"reference"``
+  preset (:func:`cardiosoft.preset`, stiff when an open loop has valves). A run that is at
+  ``"reference"`` already is rerun with ``rtol`` and ``atol`` 100 times tighter still.
 - **quasi-static strokes** (the ``static_*`` numbers of the bench, and the ``bench-static``
   scene): the pull grid, which sets the peak force, 10 times finer. Their stroke volume and work
   come from the end of the pull and the energy balance; the root find converges to rounding, so
@@ -38,18 +39,23 @@ import dataclasses
 import math
 import time
 
-import jax
-import numpy as np
-
-from cardiosoft.batch import StaticSolution, default_config, solve_beats, solve_static
 from cardiosoft.files import json_ready
+from cardiosoft.open_loop_tools import (  # an open loop's, named here as they always were
+    STATIC_GRID_REFINEMENT,
+    STATIC_POINTS,
+    VERIFIED,
+    fine_static,
+)
 from cardiosoft.pump import PumpSurrogate, load
-from cardiosoft.results import RunResult, member_results, summary_records
+from cardiosoft.results import RunResult
+from cardiosoft.scene_tools import tools
+from cardiosoft.solve import TIGHTER, describe
 from cardiosoft.units import mmHg
 
 __all__ = [
     "METRICS",
     "STATIC_GRID_REFINEMENT",
+    "STATIC_POINTS",
     "TIGHTER",
     "Verification",
     "describe",
@@ -58,24 +64,9 @@ __all__ = [
     "verify_run",
 ]
 
-METRICS = (
-    ("static_sv_ml", "static SV", "ml"),
-    ("dynamic_sv_ml", "dynamic SV", "ml"),
-    ("peak_force_N", "peak force", "N"),
-    ("mech_work_J", "mech. work", "J"),
-    ("efficiency", "efficiency", "-"),
-    ("ef", "EF", "-"),
-    ("edv_ml", "EDV", "ml"),
-    ("esv_ml", "ESV", "ml"),
-    ("cardiac_output_l_min", "cardiac output", "l/min"),
-)
-"""The metrics of :func:`cardiosoft.summary_records` that are verified: (key, name, unit)."""
-STATIC_POINTS = 401
-"""Points of the pull grid of :func:`cardiosoft.solve_static` (its ``quasi_static_stroke``)."""
-STATIC_GRID_REFINEMENT = 10
-"""The quasi-static check's pull grid: this many times finer than the run's."""
-TIGHTER = 100.0
-"""A run at ``"reference"`` already is checked at ``rtol`` and ``atol`` this many times tighter."""
+METRICS = VERIFIED
+"""The numbers an open-loop scene's ``--verify`` checks (a closed loop's: its namespace's
+``verified``): (key, name, unit)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,6 +88,8 @@ class Verification:
     seconds: float
     members: tuple[dict, ...]
     ok: bool
+    metrics: tuple[tuple[str, str, str], ...] = METRICS
+    """The numbers checked, (key, name, unit), in the table's order."""
 
     def record(self) -> dict:
         """JSON-ready (NaN as ``None``): the ``"verification"`` entry of ``summary.json``."""
@@ -142,7 +135,7 @@ class Verification:
         head = ("member", "metric", "unit", "run", "reference", "difference", "relative")
         rows = []
         for m in self.members:
-            for key, name, unit in METRICS:
+            for key, name, unit in self.metrics:
                 if key not in m["metrics"]:
                     continue
                 v = m["metrics"][key]
@@ -171,39 +164,13 @@ class Verification:
         return "\n".join(lines)
 
 
-def describe(config) -> str:
-    """A :class:`~cardiosoft.solve.SolverConfig` in words: solver, rtol, atol."""
-    name = type(config.solver).__name__
-    return f"{name}, rtol {float(config.rtol):.0e}, atol {float(config.atol):.0e}"
-
-
 def reference_config(scene):
     """The tighter setting a dynamic run of ``scene`` is checked against (module docstring)."""
+    preset = tools(scene).preset
     if scene.accuracy != "reference":
-        return default_config(scene.replace(accuracy="reference"))
-    config = default_config(scene)
+        return preset(scene.replace(accuracy="reference"))
+    config = preset(scene)
     return dataclasses.replace(config, rtol=config.rtol / TIGHTER, atol=config.atol / TIGHTER)
-
-
-def fine_static(scene, pump, afterload, n_points: int) -> StaticSolution:
-    """Quasi-static strokes of ``scene``'s members at ``afterload`` (Pa) on ``n_points``."""
-    return solve_static(scene, afterload=afterload, pump=pump, n_points=n_points)
-
-
-def _check_members(result: RunResult) -> None:
-    """``result`` must be a :func:`cardiosoft.run` of its scene: one member per afterload."""
-    scene = result.scene
-    heads = [m.afterload for m in result.members]
-    expected = list(scene.afterloads) if scene.afterload.has_heads else [None]
-    same = len(heads) == len(expected) and all(
-        (h is None and e is None) or (h is not None and e is not None and math.isclose(h, e))
-        for h, e in zip(heads, expected, strict=False)
-    )
-    if not same:
-        raise ValueError(
-            "verify: result is not a cardiosoft.run() of its scene (one member per afterload); "
-            "a run_designs() of several designs is not supported"
-        )
 
 
 def verify_run(
@@ -222,44 +189,18 @@ def verify_run(
     """
     scene = result.scene
     pump = load(scene.pump) if pump is None else pump
-    _check_members(result)
-    labels = [m.label for m in result.members]
-    heads = None
-    if scene.afterload.has_heads:
-        heads = np.array([m.afterload for m in result.members], dtype=float)
+    tool = tools(scene)
     start = time.perf_counter()
-    static = None
-    if heads is not None:
-        static = fine_static(scene, pump, heads, STATIC_GRID_REFINEMENT * (STATIC_POINTS - 1) + 1)
-    if scene.static:
-        dynamic = None
-        run_setting = f"quasi-static pull, {STATIC_POINTS} points"
-        reference_setting = (
-            f"quasi-static pull, {STATIC_GRID_REFINEMENT * (STATIC_POINTS - 1) + 1} points"
-        )
-    else:
-        config = reference_config(scene)
-        dynamic = solve_beats(
-            scene,
-            afterload=None if heads is None else heads,
-            beats=beats,
-            steady=steady,
-            pump=pump,
-            config=config,
-        )
-        run_setting = f"preset {scene.accuracy!r}: {describe(default_config(scene))}"
-        which = "preset 'reference'" if scene.accuracy != "reference" else f"{TIGHTER:g}x tighter"
-        reference_setting = f"{which}: {describe(config)}"
-        if static is not None:
-            reference_setting += f"; quasi-static pulls on {STATIC_GRID_REFINEMENT}x the points"
-    jax.block_until_ready((static, dynamic))
-    reference = RunResult(scene, member_results(labels, dynamic, static))
+    reference, run_setting, reference_setting, succeeded = tool.verify_rerun(
+        result, reference_config(scene), beats=beats, steady=steady, pump=pump
+    )
     seconds = time.perf_counter() - start
-    ran, ref = summary_records(result), summary_records(reference)
+    checked = tool.verified(scene)
+    ran, ref = tool.summary_records(result), tool.summary_records(reference)
     members = []
     for a, b, m_run, m_ref in zip(ran, ref, result.members, reference.members, strict=True):
         metrics = {}
-        for key, _, _ in METRICS:
+        for key, _, _ in checked:
             if a.get(key) is None or b.get(key) is None:
                 continue
             x, y = float(a[key]), float(b[key])
@@ -280,10 +221,10 @@ def verify_run(
             }
         )
     # the rerun is trusted where the run was: it succeeded (and is steady) wherever the run is
-    ok = all(
+    ok = succeeded and all(
         m_ref.ok or not m_run.ok
         for m_ref, m_run in zip(reference.members, result.members, strict=True)
     )
-    if dynamic is not None:
-        ok = ok and bool(np.all(np.asarray(dynamic.succeeded)))
-    return Verification(scene.name, run_setting, reference_setting, seconds, tuple(members), ok)
+    return Verification(
+        scene.name, run_setting, reference_setting, seconds, tuple(members), ok, checked
+    )

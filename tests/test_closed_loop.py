@@ -445,7 +445,6 @@ def simulate(*args):
     ("args", "message"),
     [
         (["--afterload", "90"], "afterload: scene heart is a closed loop"),
-        (["--verify"], "--verify: scene heart is a closed loop"),
         (["--omega", "4"], "omega: scene heart has no soft pump"),
         (["--uncertainty"], "--uncertainty: scene heart has no soft pump"),
         (["--uncertainty", "--explain"], "--uncertainty: scene heart has no soft pump"),
@@ -456,6 +455,29 @@ def test_cli_refuses_bad_input_for_a_loop_in_one_line(tmp_path, args, message):
     assert done.returncode == 2
     assert done.stderr.strip().count("\n") == 0 and message in done.stderr
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_cli_verifies_a_loop(tmp_path):
+    """``--verify`` on a closed loop: summary.json's ``verification`` holds every number of the
+    loop's record against a rerun at the reference preset (the estimate itself is held to the
+    true error in tests/test_verify_estimate.py); the run's numbers are those of the record."""
+    import json
+
+    from cardiosoft.simulate import main
+
+    out = tmp_path / "out"
+    assert main(["--scene", "heart", "--beats", "5", "--verify", "--out", str(out), "--quiet",
+                 "--no-plot"]) == 0  # fmt: skip
+    summary = json.loads((out / "summary.json").read_text())
+    (record,) = summary["records"]
+    check = summary["verification"]
+    assert check["ok"] and "preset 'reference'" in check["reference_setting"]
+    (member,) = check["members"]
+    assert member["beats"] == member["reference_beats"] == 5
+    for key in ("left_sv_ml", "aortic_mean_mmHg", "ra_mean_mmHg"):
+        assert member["metrics"][key]["run"] == record[key]
+        assert math.isfinite(member["metrics"][key]["difference"])
+        assert member["metrics"][key]["difference"] != 0.0  # a rerun that is not the run
 
 
 # --- slow: the soft-pump scenes and the command line, each from a fresh compile --------------

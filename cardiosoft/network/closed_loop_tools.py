@@ -27,17 +27,17 @@ from cardiosoft.network.loop_results import (
 from cardiosoft.network.loop_scene import LoopScene
 from cardiosoft.pump import DEFAULT_ARTIFACT, load
 from cardiosoft.results import RunResult
+from cardiosoft.solve import rerun_settings
 
 __all__ = [
     "addable_effects", "column_heads", "configure", "design", "heading", "member_count",
     "plot", "preset", "run", "simulate_members", "solve_beats", "summary_records",
     "sweep_flags", "sweep_panels", "sweep_variables", "table", "trace_columns", "uncertainty",
-    "unsupported",
+    "unsupported", "verified", "verify_rerun",
 ]  # fmt: skip
 
 _UNSUPPORTED = {
     "compare_paper": "is not the paper's bench",
-    "verify": "is a closed loop, which --verify does not check yet",
     "energy": "is a closed loop, which keeps no energy account yet",
     "bench_bands": "is a closed loop: its --uncertainty bands are its pump's posterior draws "
     "alone (simulate's), which --explain and sweep's bands do not take yet",
@@ -223,3 +223,27 @@ def uncertainty(scene: LoopScene, posterior, *, beats=None, steady="beats"):
         bad = np.flatnonzero(~good)
         messages.append(out.message((int(bad[0]), i)) if bad.size else "")
     return bands, messages, int(ok.shape[0]), {"holds": UNCERTAINTY}
+
+
+def verified(scene: LoopScene) -> tuple[tuple[str, str, str], ...]:
+    """The record numbers ``--verify`` checks, ``(key, name, unit)``: every number of the
+    loop's record (:func:`~cardiosoft.network.loop_records.record_numbers`, a pump's only on
+    its side)."""
+    numbers = record_numbers(pumps=pump_sides(scene))
+    return tuple((key, long_name, unit)
+                 for key, (_, _, unit, long_name) in numbers.items())  # fmt: skip
+
+
+def verify_rerun(result: RunResult, config, *, beats=None, steady="beats", pump=None):
+    """The loop solved again at ``config`` (:func:`cardiosoft.verify_run`): the rerun, the
+    run's and the rerun's settings in words, whether it succeeded."""
+    scene = result.scene
+    if len(result.members) != 1:
+        raise ValueError(
+            "verify: result is not a cardiosoft.run() of its scene (one member); a "
+            "run_designs() of several designs is not supported"
+        )
+    solution = solve_loop(scene, beats=beats, steady=steady, pump=pump, config=config)
+    reference = RunResult(scene, loop_member_results(scene, [scene.name], solution))
+    settings = rerun_settings(scene.accuracy, preset(scene), config)
+    return reference, *settings, bool(np.all(np.asarray(solution.succeeded)))
