@@ -1,6 +1,12 @@
-"""Calculation verification: per scene, the numerical error the default preset leaves in the
-numbers a user reads, what ``simulate --verify`` estimates of it, and the steady state; and the
-hard-case suite.
+"""Calculation verification: per scene (every shipped dynamic scene, open loops and closed),
+the numerical error the default preset leaves in the numbers a user reads, what ``simulate
+--verify`` estimates of it, and the steady state; and the hard-case suite.
+
+Each scene is first run to its periodic steady state (the steady state's check); the runs
+compared then repeat the beats that took (``beats=``, which ``--verify`` repeats too), so that
+they differ in their time steps alone: run to the steady state, a tighter solve may stop a beat
+later, and a closed loop, which settles over 12-153 beats, still changes by up to its
+stopping tolerance a beat.
 
 ``--verify``'s **estimate** is the default run's difference from its rerun at the
 ``"reference"`` preset (:func:`cardiosoft.verify.verify_run`). The **true error** comes from an
@@ -29,13 +35,24 @@ from pathlib import Path
 
 from cardiosoft.credibility.evidence import Check, Section, source_root
 
-__all__ = ["ESTIMATE_BAND", "MODEL", "calculation_verification", "model_checks"]
+__all__ = ["ESTIMATE_BAND", "MODEL", "calculation_verification", "model_checks", "scene_checks"]
 
 SCENES = (("bench-dynamic", 60.0), ("bench-dynamic", 30.0), ("lv-systemic", None),
-          ("rv-pulmonary", None))  # fmt: skip
-"""(scene, bpm; None: the scene's own) of the full report; ``quick`` checks the first."""
-PRINTED = {"dynamic_sv_ml": ("dynamic SV", "ml", 0.05), "peak_force_N": ("peak force", "N", 0.05)}
-"""The metrics checked, their units and half the last digit the tables print."""
+          ("rv-pulmonary", None), ("heart", None), ("soft-lv", None), ("soft-rv", None),
+          ("tah", None))  # fmt: skip
+"""(scene, bpm; None: the scene's own) of the full report: every shipped dynamic scene, open
+loops and closed; ``quick`` checks the first."""
+PRINTED = {
+    "dynamic_sv_ml": ("dynamic SV", "ml", 0.05), "peak_force_N": ("peak force", "N", 0.05),
+    "left_sv_ml": ("left SV", "ml", 0.05), "right_sv_ml": ("right SV", "ml", 0.05),
+    "left_peak_force_N": ("left pump's peak force", "N", 0.05),
+    "right_peak_force_N": ("right pump's peak force", "N", 0.05),
+    "aortic_mean_mmHg": ("mean aortic pressure", "mmHg", 0.05),
+    "pulmonary_mean_mmHg": ("mean pulmonary pressure", "mmHg", 0.05),
+}  # fmt: skip
+"""The metrics checked where a scene's record has them (an open loop's SV and force; a closed
+loop's SV of each side, each pump's force and the arteries' mean pressures), their units and
+half the last digit the tables print."""
 ESTIMATE_BAND = 0.5
 """``--verify``'s estimate / the true error must be within 1 +- this: the method predicts 1
 less the reference's error over the run's (about 1e-3 here), and a 5x under-estimate (issue
@@ -57,19 +74,29 @@ def _by_member(verification) -> list[tuple[str, dict]]:
     return [(m["label"], m["metrics"]) for m in verification.members]
 
 
-def _scene_checks(name: str, bpm, progress) -> tuple[list[Check], list[str]]:
+def scene_checks(name: str, bpm, progress) -> tuple[list[Check], list[str]]:
+    """The shipped scene ``name`` at ``bpm`` (None: its own) checked as the module docstring
+    says: the checks (each :data:`PRINTED` number its record has: the default preset's true
+    error, ``--verify``'s estimate over it; the steady state) and the table's rows."""
     from cardiosoft.experiment import run
-    from cardiosoft.results import summary_records
+    from cardiosoft.scene_tools import summary_records
     from cardiosoft.solve import PRESETS
     from cardiosoft.verify import verify_run
 
     label = f"{name}" + (f" at {bpm:g} bpm" if bpm else "")
-    progress(f"calculation verification: {label}: the default preset, --verify ...")
+    progress(f"calculation verification: {label}: to the periodic steady state ...")
     steps = PRESETS["reference"]["max_steps"]  # one compiled program for all the runs
-    default = run(name, bpm=bpm, max_steps=steps)
-    estimate = verify_run(default)
+    steady = run(name, bpm=bpm, max_steps=steps)
+    # The runs compared repeat the beats the steady run needed (module docstring).
+    beats = max(m.beats for m in steady.members)
+    progress(f"calculation verification: {label}: {beats} beats, the default preset, --verify ...")
+    same = all(m.beats == beats for m in steady.members)  # then the steady run is that run
+    default = steady if same else run(name, bpm=bpm, beats=beats, max_steps=steps)
+    estimate = verify_run(default, beats=beats)
     progress(f"calculation verification: {label}: the reference preset and its own check ...")
-    reference = verify_run(run(name, bpm=bpm, accuracy="reference", max_steps=steps))
+    reference = verify_run(
+        run(name, bpm=bpm, beats=beats, accuracy="reference", max_steps=steps), beats=beats
+    )
     checks, rows = [], []
     for key, (metric, unit, printed) in PRINTED.items():
         true_errors, ratios = [], []
@@ -101,13 +128,13 @@ def _scene_checks(name: str, bpm, progress) -> tuple[list[Check], list[str]]:
                 f"1 +- {ESTIMATE_BAND:g}", f"{worst:.4f} (worst member)", "verification",
                 abs(worst - 1) <= ESTIMATE_BAND, "cardiosoft simulate --verify",
             ))  # fmt: skip
-    records = summary_records(default)
+    records = summary_records(steady)
     residual = max(float(r.get("steady_residual") or 0.0) for r in records)
-    steady = all(m.ok for m in default.members)
+    settled = all(m.ok for m in steady.members)
     checks.append(Check(
         f"{label}: periodic steady state reached", "every member steady",
-        f"{'yes' if steady else 'no'}; largest cycle-to-cycle residual {residual:.1e}",
-        "verification", steady, "cardiosoft simulate",
+        f"{'yes' if settled else 'no'}; {beats} beats; largest cycle-to-cycle residual "
+        f"{residual:.1e}", "verification", settled, "cardiosoft simulate",
     ))  # fmt: skip
     return checks, rows
 
@@ -180,9 +207,9 @@ def calculation_verification(folder: Path, quick: bool, progress) -> Section:
     """The section (module docstring); ``quick``: the main job's scene alone, no suite."""
     checks, rows = [], []
     for name, bpm in SCENES[:1] if quick else SCENES:
-        scene_checks, scene_rows = _scene_checks(name, bpm, progress)
-        checks += scene_checks
-        rows += scene_rows
+        found, found_rows = scene_checks(name, bpm, progress)
+        checks += found
+        rows += found_rows
     if not quick:
         with tempfile.TemporaryDirectory() as workdir:
             found, found_rows = model_checks(source_root(), Path(workdir), progress)
@@ -196,8 +223,10 @@ def calculation_verification(folder: Path, quick: bool, progress) -> Section:
         *rows,
     ]
     text = "\n".join([
-        "Each scene's members are solved at the default preset and checked by `--verify` "
-        "(its estimate: the difference from a rerun at the `reference` preset, what "
+        "Every shipped dynamic scene, open loops and closed. Each scene's members are solved "
+        "to the periodic steady state; then, over the beats that took (so that the runs "
+        "compared differ in their time steps alone), at the default preset and checked by "
+        "`--verify` (its estimate: the difference from a rerun at the `reference` preset, what "
         "`simulate --verify` writes to `summary.json`); independently, at the `reference` "
         "preset, checked in turn by a rerun 100x tighter. The true error is the default run's "
         "difference from that tightest solve; the reference run's difference from it bounds "
