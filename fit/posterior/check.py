@@ -83,36 +83,55 @@ def ensemble_map(fn, pump):
     return eqx.filter_jit(jax.vmap(fn, in_axes=(ensemble_axes(pump),)))(pump)
 
 
-def table2(posterior, data, *, seed: int = 0) -> Coverage:
-    """Table II's contracted volumes (ml) against their 95 % predictive bands."""
+def _zero_pressure(posterior, table, sd_ml: float, seed: int) -> Coverage:
+    """A table of zero-pressure EFs (its columns omega, shortening, ef_percent) as contracted
+    volumes ``V_u (1 - EF)`` (ml) against their 95 % bands: the EF law's draws and ``sd_ml``
+    of normal noise (seeded)."""
     from cardiosoft.pump import load
     from fit.pipeline import zero_pressure_ef
 
-    t2 = data.table2_experiment
-    omega = jnp.asarray(t2["omega"], float)
-    c = jnp.asarray(t2["shortening"], float)
+    omega = jnp.asarray(table["omega"], float)
+    c = jnp.asarray(table["shortening"], float)
     vu = float(load().unloaded_volume) / ml
     ef = np.asarray(ensemble_map(lambda p: zero_pressure_ef(p, omega, c), posterior.pump))
     best = vu * (1 - np.asarray(zero_pressure_ef(load(), omega, c)))
-    volume = vu * (1 - ef)  # (S, 9)
+    volume = vu * (1 - ef)  # (S, cells)
+    rng = np.random.default_rng(seed)
+    samples = volume[:, None, :] + sd_ml * rng.standard_normal(
+        (*volume.shape[:1], NOISE_SAMPLES, volume.shape[1])
+    )
+    low, high = _quantiles(samples.reshape(-1, volume.shape[1]))
+    observed = vu * (1 - np.asarray(table["ef_percent"], float) / 100)
+    labels = [f"Omega {o:g}, C {s:.1f}" for o, s in zip(table["omega"], table["shortening"],
+                                                          strict=True)]
+    return Coverage(labels, observed, best, low, high)
+
+
+def table2(posterior, data, *, seed: int = 0) -> Coverage:
+    """Table II's contracted volumes (ml) against their 95 % predictive bands: the draws, the
+    EF discrepancy and the measurement's sd (a new measurement is predicted)."""
     card = posterior.card
     sd = math.hypot(
         card["discrepancy"]["ef_volume"]["s0"] / ml, card["sigmas"]["table2_measurement_ml"]
     )
-    rng = np.random.default_rng(seed)
-    samples = volume[:, None, :] + sd * rng.standard_normal((*volume.shape[:1], NOISE_SAMPLES,
-                                                               volume.shape[1]))
-    low, high = _quantiles(samples.reshape(-1, volume.shape[1]))
-    observed = vu * (1 - np.asarray(t2["ef_percent"], float) / 100)
-    labels = [f"Omega {o:g}, C {s:.1f}" for o, s in zip(t2["omega"], t2["shortening"],
-                                                          strict=True)]
-    return Coverage(labels, observed, best, low, high)
+    return _zero_pressure(posterior, data.table2_experiment, sd, seed)
+
+
+def table1(posterior, data, *, seed: int = 0) -> Coverage:
+    """Table I's contracted volumes (ml; the paper's FEM, which the EF law is fitted to)
+    against the model's 95 % bands: the draws and the EF discrepancy, with no measurement's sd
+    (a simulation does not scatter)."""
+    sd = posterior.card["discrepancy"]["ef_volume"]["s0"] / ml
+    return _zero_pressure(posterior, data.table1_fem, sd, seed)
 
 
 class BenchCheck(NamedTuple):
     dynamic_sv: Coverage
     peak_force: Coverage
     failed: int
+    bands: tuple = ()
+    """Per head, the model's own 95 % predictive bands of every metric (draws and
+    discrepancy, no measurement's sd: :func:`cardiosoft.posterior.predictive_bands`)."""
 
 
 def bench(posterior, data, scene, *, seed: int = 0, heads=None) -> BenchCheck:
@@ -122,7 +141,7 @@ def bench(posterior, data, scene, *, seed: int = 0, heads=None) -> BenchCheck:
     (:func:`fit.posterior.artifact.bench_scene`); ``heads``: indices of the paper's afterloads to
     check (default all)."""
     from cardiosoft.batch import solve_beats
-    from cardiosoft.posterior import discrepancy_sd, ensemble_run
+    from cardiosoft.posterior import discrepancy_sd, ensemble_run, predictive_bands
     from cardiosoft.units import mmHg
 
     b = data.fig10_bench
@@ -153,7 +172,8 @@ def bench(posterior, data, scene, *, seed: int = 0, heads=None) -> BenchCheck:
             highs.append(hi)
         labels = [f"{p:g} mmHg" for p in pick(b["afterload_mmHg"])]
         out.append(Coverage(labels, obs, best, np.array(lows), np.array(highs)))
-    return BenchCheck(*out, failed=int((~ens.ok).sum()))
+    bands = tuple(predictive_bands(ens, posterior.card, seed=seed))
+    return BenchCheck(*out, failed=int((~ens.ok).sum()), bands=bands)
 
 
 LOAO_DRAWS = 64
