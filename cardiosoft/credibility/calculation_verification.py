@@ -1,6 +1,7 @@
-"""Calculation verification: per scene (every shipped dynamic scene, open loops and closed),
-the numerical error the default preset leaves in the numbers a user reads, what ``simulate
---verify`` estimates of it, and the steady state; and the hard-case suite.
+"""Calculation verification: per scene (every shipped dynamic scene, open loops and closed, and
+the quasi-static bench's pull grid, :func:`static_checks`), the numerical error the default
+preset leaves in the numbers a user reads, what ``simulate --verify`` estimates of it, and the
+steady state; and the hard-case suite.
 
 Each scene is first run to its periodic steady state (the steady state's check); the runs
 compared then repeat the beats that took (``beats=``, which ``--verify`` repeats too), so that
@@ -35,7 +36,10 @@ from pathlib import Path
 
 from cardiosoft.credibility.evidence import Check, Section, source_root
 
-__all__ = ["ESTIMATE_BAND", "MODEL", "calculation_verification", "model_checks", "scene_checks"]
+__all__ = [
+    "ESTIMATE_BAND", "MODEL", "calculation_verification", "model_checks", "scene_checks",
+    "static_checks",
+]
 
 SCENES = (("bench-dynamic", 60.0), ("bench-dynamic", 30.0), ("lv-systemic", None),
           ("rv-pulmonary", None), ("heart", None), ("soft-lv", None), ("soft-rv", None),
@@ -61,6 +65,11 @@ ABOVE_REFERENCE = 10.0
 """A true error is compared with its estimate only when it is this many times the reference's
 own error bound: below it, the "true" error is the reference's."""
 SUITE = "cardiosoft stress"
+STATIC_SCENE = "bench-static"
+"""The shipped quasi-static scene: no time integration, its pull grid checked instead
+(:func:`static_checks`)."""
+TRUTH_REFINEMENT = 100
+"""The quasi-static truth's pull grid: this many times finer than the run's."""
 MODEL = ("tests/data/svzerod/closed_loop_two_hill.json", "LV", "si")
 """(svZeroDSolver model, the chamber the pump replaces, the model's units) of the full report:
 the circulation how-to's command (upstream's two-hill closed loop)."""
@@ -139,6 +148,54 @@ def scene_checks(name: str, bpm, progress) -> tuple[list[Check], list[str]]:
     return checks, rows
 
 
+def static_checks(progress) -> tuple[list[Check], list[str]]:
+    """The quasi-static bench (:data:`STATIC_SCENE`) checked as the module docstring says, on
+    its pull grid: its strokes are root finds at each point of the pull (no time
+    discretisation; the SV, the work and the efficiency are exact at the stroke's ends), and
+    the peak force is the largest over the grid's points. ``--verify``'s estimate is the
+    difference from a grid 10x finer; the truth is a grid 100x finer, and the 10x grid's
+    difference from it bounds the truth's own error. Returns the checks and the table's
+    rows."""
+    import numpy as np
+
+    from cardiosoft.experiment import run
+    from cardiosoft.pump import load
+    from cardiosoft.verify import STATIC_POINTS, fine_static, verify_run
+
+    progress(f"calculation verification: {STATIC_SCENE}: the pull grid, --verify ...")
+    result = run(STATIC_SCENE)
+    estimate = verify_run(result)
+    heads = np.array([m.afterload for m in result.members], dtype=float)
+    points = TRUTH_REFINEMENT * (STATIC_POINTS - 1) + 1  # every point of the coarser grids
+    truth = np.asarray(fine_static(result.scene, load(result.scene.pump), heads, points)
+                       .peak_force)  # fmt: skip
+    metric, unit, printed = "quasi-static peak force", "N", PRINTED["peak_force_N"][2]
+    rows, errors, ratios = [], [], []
+    for (member, est), true in zip(_by_member(estimate), truth, strict=True):
+        value, difference = est["peak_force_N"]["run"], est["peak_force_N"]["difference"]
+        true_error = value - float(true)
+        truth_error = abs(est["peak_force_N"]["reference"] - float(true))
+        errors.append(abs(true_error))
+        if abs(true_error) > ABOVE_REFERENCE * truth_error:
+            ratios.append(difference / true_error)
+        rows.append(f"| {STATIC_SCENE}, {member} | {metric} ({unit}) | {value:.6g} | "
+                    f"{abs(true_error):.1e} | {abs(difference):.1e} | {truth_error:.0e} |")
+    label = f"{STATIC_SCENE}: {metric}"
+    source = "cardiosoft simulate --scene bench-static --verify"
+    checks = [Check(
+        f"{label}, error of the pull grid", f"< {printed:g} {unit}", f"{max(errors):.1e} {unit}",
+        "verification", max(errors) < printed, source,
+    )]  # fmt: skip
+    if ratios:
+        worst = max(ratios, key=lambda r: abs(r - 1))
+        checks.append(Check(
+            f"{label}, --verify's estimate / the true error", f"1 +- {ESTIMATE_BAND:g}",
+            f"{worst:.4f} (worst member of {len(ratios)} compared)", "verification",
+            abs(worst - 1) <= ESTIMATE_BAND, source,
+        ))  # fmt: skip
+    return checks, rows
+
+
 def model_checks(root: Path, workdir: Path, progress) -> tuple[list[Check], list[str]]:
     """:data:`MODEL` run as ``simulate --scene ... --pump-chamber ... --verify`` runs it, its
     estimate against the true error (the module docstring): the checks and the table's rows.
@@ -205,12 +262,17 @@ def _suite_checks(progress) -> Check:
 
 def calculation_verification(folder: Path, quick: bool, progress) -> Section:
     """The section (module docstring); ``quick``: the main job's scene alone, no suite."""
+    from cardiosoft.verify import STATIC_GRID_REFINEMENT
+
     checks, rows = [], []
     for name, bpm in SCENES[:1] if quick else SCENES:
         found, found_rows = scene_checks(name, bpm, progress)
         checks += found
         rows += found_rows
     if not quick:
+        found, found_rows = static_checks(progress)
+        checks += found
+        rows += found_rows
         with tempfile.TemporaryDirectory() as workdir:
             found, found_rows = model_checks(source_root(), Path(workdir), progress)
         checks += found
@@ -237,6 +299,11 @@ def calculation_verification(folder: Path, quick: bool, progress) -> Section:
         "state's own error is the cycle-to-cycle residual of the last beat.",
         "",
         *table,
+        "",
+        f"The quasi-static bench (`{STATIC_SCENE}`, the full report) has no time steps: its "
+        "strokes are root finds along a pull grid, exact in the SV, the work and the "
+        "efficiency; its peak force is the grid's largest, checked by `--verify` on a grid "
+        f"{STATIC_GRID_REFINEMENT}x finer and here against one {TRUTH_REFINEMENT:g}x finer.",
         "",
         "The pump in an svZeroDSolver model (the full report: upstream's "
         f"`{Path(MODEL[0]).stem}` with the pump as its {MODEL[1]}) is checked the same way: "
