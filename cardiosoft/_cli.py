@@ -145,6 +145,16 @@ against 5.9-6.8 s, lv-systemic's in 8.7 and 3.6 s against 10.0 and 8.5 s; the co
 are no slower (lv-systemic's orbits 1.0 s against 1.3 s)."""
 
 
+SOLVES_MORE_THAN_COMPILES = frozenset({"--uncertainty"})
+"""Options whose command spends more time solving than compiling: XLA keeps its own settings.
+``simulate --bpm 60 --uncertainty`` (48 draws x 3 heads, the batch running until its slowest
+draw settles, up to 300 beats) from fresh processes on 2 cores, 2026-12-06: with
+:data:`FAST_COMPILE_FLAGS` 33.7 s cold and 18.0 s warm; with XLA's defaults 33.1 s and 6.7 s;
+with the classic emitters alone 34.0 s and 8.3 s. (The design searches were measured too and
+keep the flags: the bench's 23.1 s cold against 32.4 s at XLA's defaults, warm 3.8 s against
+3.5 s; ``tah``'s 60.5 and 32.8 s against 53.3 and 26.3 s.)"""
+
+
 def fast_compile_flags() -> tuple[str, ...]:
     """:data:`FAST_COMPILE_FLAGS` that the installed XLA takes: XLA aborts the process on a flag
     it does not know, so the emitters' flag is given only to the jaxlib it was measured with
@@ -167,7 +177,9 @@ def prepare_process(tool: str, argv) -> None:
       little for a few solves (simulate's results agree to 1e-13; a design search's calls run
       about 3x slower, ~0.15 s against 0.05 s on the bench, which tens of calls hardly notice).
       With jaxlib 0.10 (where it was measured) also XLA's classic CPU emitters instead of its
-      fusion emitters (:data:`FAST_COMPILE_FLAGS`).
+      fusion emitters (:data:`FAST_COMPILE_FLAGS`). Not with ``--uncertainty``
+      (:data:`SOLVES_MORE_THAN_COMPILES`), whose time is the posterior's draws, solved 3.5x
+      slower at level 0 and compiled no faster.
     - sweep, in this process (not with ``--workers`` / ``--scheduler``, whose workers share the
       cores): as many XLA host devices as cores, so that each chunk is sharded over all of them
       (``benchmarks/sweep_throughput.py``, section 4).
@@ -179,7 +191,8 @@ def prepare_process(tool: str, argv) -> None:
     """
     flags = os.environ.get("XLA_FLAGS", "")
     options = {a.split("=")[0] for a in argv}
-    if tool in ("simulate", "design") or (tool == "stress" and "--quick" in options):
+    compiling = tool in ("simulate", "design") or (tool == "stress" and "--quick" in options)
+    if compiling and not SOLVES_MORE_THAN_COMPILES & options:
         os.environ.setdefault("XLA_FLAGS", " ".join(fast_compile_flags()))
     elif tool == "sweep" and "xla_force_host_platform_device_count" not in flags:
         if not {"--workers", "--scheduler"} & options:
