@@ -168,6 +168,21 @@ def fast_compile_flags() -> tuple[str, ...]:
     return FAST_COMPILE_FLAGS if major_minor >= (0, 10) else FAST_COMPILE_FLAGS[:1]
 
 
+def xla_flags(tool: str, argv, current: str | None) -> str | None:
+    """The ``XLA_FLAGS`` that ``tool`` run with ``argv`` sets (:func:`prepare_process`), given
+    the ``current`` one (None: unset); None leaves it as it is."""
+    options = {a.split("=")[0] for a in argv}
+    compiling = tool in ("simulate", "design") or (tool == "stress" and "--quick" in options)
+    if compiling and not SOLVES_MORE_THAN_COMPILES & options:
+        return " ".join(fast_compile_flags()) if current is None else None
+    flags = current or ""
+    if tool == "sweep" and "xla_force_host_platform_device_count" not in flags:
+        if not {"--workers", "--scheduler"} & options:
+            count = f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"
+            return f"{flags} {count}".strip()
+    return None
+
+
 def prepare_process(tool: str, argv) -> None:
     """Settings of a command's own process, made before JAX starts its backend: never by a
     library import or a ``main()`` that a test calls in-process.
@@ -189,15 +204,9 @@ def prepare_process(tool: str, argv) -> None:
 
     An ``XLA_FLAGS`` of the user's own is left as it is.
     """
-    flags = os.environ.get("XLA_FLAGS", "")
-    options = {a.split("=")[0] for a in argv}
-    compiling = tool in ("simulate", "design") or (tool == "stress" and "--quick" in options)
-    if compiling and not SOLVES_MORE_THAN_COMPILES & options:
-        os.environ.setdefault("XLA_FLAGS", " ".join(fast_compile_flags()))
-    elif tool == "sweep" and "xla_force_host_platform_device_count" not in flags:
-        if not {"--workers", "--scheduler"} & options:
-            count = f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"
-            os.environ["XLA_FLAGS"] = f"{flags} {count}".strip()
+    flags = xla_flags(tool, argv, os.environ.get("XLA_FLAGS"))
+    if flags is not None:
+        os.environ["XLA_FLAGS"] = flags
     if tool in ("simulate", "design", "sweep", "credibility"):
         from cardiosoft.program_store import use_program_store
 
