@@ -9,7 +9,10 @@
   beside the paper's own FEM error.
 - **The 30-bpm bench**: the paper's dynamic SVs (fitted: in-sample) and peak forces (not
   fitted) against the bands of the posterior's draws solved at 30 bpm, the discrepancy and the
-  paper's SDs.
+  paper's SDs; and the model's own bands of every metric there (no measurement's sd), which
+  the credibility report prints beside each comparison.
+- **Table I** (the FEM the EF law is fitted to), for the credibility report: its contracted
+  volumes against the draws and the EF discrepancy, with no measurement's sd (no bound).
 """
 
 from __future__ import annotations
