@@ -206,6 +206,7 @@ def test_the_credibility_report_verifies_a_closed_loop_over_the_beats_it_took_to
     assert all(c.met for c in checks), checks
 
 
+@pytest.mark.slow  # 11 s of CI's 20 minutes (19 min 52 s with it); the credibility report runs it
 def test_the_quasi_static_pull_grid_error_is_estimated():
     """The credibility report's check of ``bench-static`` (no time steps: its peak force is
     the largest over the pull grid): the grid's true error, against a grid 100x finer, below
