@@ -19,7 +19,7 @@ FEM's loadings.
 
 from __future__ import annotations
 
-__all__ = ["BENCH_LINES", "comparisons_table"]
+__all__ = ["BENCH_LINES", "FEM_COMPARISONS", "comparisons_table"]
 
 BENCH_LINES = (
     ("Fig. 10 static SV", "static_sv_ml", "ml", "static_sv_sd_ml", "fitted"),
@@ -29,6 +29,15 @@ BENCH_LINES = (
 )
 """The bench's lines: (comparison, summary key, unit, the paper's SD column, basis). The
 efficiency is printed to three decimals with no SD (Sec. III-D)."""
+
+FEM_COMPARISONS = {
+    "fem_efficiency_helical": ("FEM efficiency, helical (Omega 4)", 0.442, 3),
+    "fem_efficiency_longitudinal": ("FEM efficiency, longitudinal (Omega 0)", 0.331, 3),
+    "fem_mech_work_ratio": ("FEM mechanical-work ratio, helical / longitudinal", 2.8, 2),
+    "fem_hydraulic_work_ratio": ("FEM hydraulic-work ratio, helical / longitudinal", 3.7, 2),
+}
+"""The paper's FEM comparisons (section III-A) the fit report computes: ``{metric key:
+(label, the paper's value, decimals shown)}``."""
 
 NO_BAND = {
     "geometry": "none: no fitted parameter (eqs. 1-7)",
@@ -95,12 +104,7 @@ def comparisons_table(
             lines.append(f"| Fig. 10 {label} | {at} | {float(value[i]):.3g} {unit} "
                          f"({uncertainty[i]}) | {float(model[i]):.3g} {unit} | "
                          f"{NO_BAND['quasi-static']} | fitted |")  # fmt: skip
-    for key, label, value, digits in (
-        ("fem_efficiency_helical", "FEM efficiency, helical (Omega 4)", 0.442, 3),
-        ("fem_efficiency_longitudinal", "FEM efficiency, longitudinal (Omega 0)", 0.331, 3),
-        ("fem_mech_work_ratio", "FEM mechanical-work ratio, helical / longitudinal", 2.8, 2),
-        ("fem_hydraulic_work_ratio", "FEM hydraulic-work ratio, helical / longitudinal", 3.7, 2),
-    ):  # fmt: skip
+    for key, (label, value, digits) in FEM_COMPARISONS.items():
         if key in metrics:
             lines.append(f"| {label} | C 0.4 | {value:g} (the paper's FEM: none stated) | "
                          f"{metrics[key]:.{digits}f} | {NO_BAND['fem']} | fitted |")

@@ -152,15 +152,11 @@ def fit_checks(m: dict) -> list[Check]:
 def _untargeted(m: dict) -> list[Check]:
     """The comparisons the fit reports with no bound: the FEM's efficiencies and work ratios
     (section III-A) and, for a surrogate not fitted to it, the membrane inflation."""
-    paper = {
-        "fem_efficiency_helical": ("FEM efficiency, helical (Omega 4)", 0.442),
-        "fem_efficiency_longitudinal": ("FEM efficiency, longitudinal (Omega 0)", 0.331),
-        "fem_mech_work_ratio": ("FEM mechanical-work ratio, helical / longitudinal", 2.8),
-        "fem_hydraulic_work_ratio": ("FEM hydraulic-work ratio, helical / longitudinal", 3.7),
-    }
+    from cardiosoft.credibility.comparisons import FEM_COMPARISONS
+
     checks = [
         Check(label, f"paper {value:g}", f"{m[key]:.3g}", "no bound", None, FIT_REPORT)
-        for key, (label, value) in paper.items()
+        for key, (label, value, _) in FEM_COMPARISONS.items()
         if key in m
     ]
     if "membrane_max_excess_untargeted" in m:
