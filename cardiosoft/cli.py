@@ -39,7 +39,7 @@ COMMANDS = {
     "sweep": ("cardiosoft.sweep.cli", "design-space maps over Omega x C x afterload x bpm"),
     "stress": ("cardiosoft.stress.cli", "the hard-case suite"),
     "geometry": ("cardiosoft.geometry.cli", "the geometrical model's Fig. 7(a) table"),
-    "export": ("cardiosoft.network.export", "write a closed-loop scene as an svZeroDSolver model"),
+    "export": ("cardiosoft.network.export_cli", "write a scene as an svZeroDSolver model"),
     "credibility": (
         "cardiosoft.credibility.cli",
         "the credibility report (ASME V&V 40): the evidence recomputed, a verdict per check",

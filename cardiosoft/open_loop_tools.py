@@ -28,6 +28,8 @@ Every kind of scene answers the same questions through its own namespace
 - ``uncertainty(scene, posterior, *, beats, steady)``: ``--uncertainty``'s bands per member
   (``{record key: Band}``), the first failed draw's message per member, the draws solved and
   summary.json's words on the band (``holds``: what it holds).
+- ``svzerod_model(scene, units, beats, pump)``: the scene as an svZeroDSolver model (a dict,
+  ``cardiosoft export --svzerod``).
 - ``verified(scene)``, ``verify_rerun(result, config, *, beats, steady, pump)``: the record numbers
   ``--verify`` checks, ``(key, name, unit)``, and the run's members solved again at ``config``
   (:func:`cardiosoft.verify_run`): the rerun's :class:`~cardiosoft.results.RunResult`, the run's
@@ -58,8 +60,8 @@ from cardiosoft.units import mmHg
 __all__ = [
     "ABILITIES", "addable_effects", "column_heads", "configure", "design", "heading",
     "member_count", "plot", "preset", "run", "simulate_members", "solve_beats",
-    "summary_records", "sweep_flags", "sweep_panels", "sweep_variables", "table",
-    "trace_columns", "uncertainty", "unsupported", "verified", "verify_rerun",
+    "summary_records", "svzerod_model", "sweep_flags", "sweep_panels", "sweep_variables",
+    "table", "trace_columns", "uncertainty", "unsupported", "verified", "verify_rerun",
 ]  # fmt: skip
 # The namespace's names (every kind answers them). Also here, an open loop's own:
 # VERIFIED, STATIC_POINTS, STATIC_GRID_REFINEMENT, fine_static (cardiosoft.verify names them).
@@ -117,14 +119,19 @@ def unsupported(scene: Scene, what: str) -> str | None:
             "is static; the posterior's ensemble runs on the dynamic pump scenes "
             "(bench-dynamic, lv-systemic, rv-pulmonary or your own)"
         )
-    if what == "export":
-        return (
-            "is not written as an svZeroDSolver model yet: only the closed loops are (heart, "
-            "soft-lv, soft-rv, tah)"
-        )
+    if what == "export" and scene.afterload.has_heads:
+        from cardiosoft.network.export_open_loop import UNSUPPORTED
+
+        return UNSUPPORTED
     if what == "loop_design":
         return "is not a closed loop: cardiosoft.design.optimise designs its pump"
     return None
+
+
+def svzerod_model(scene: Scene, units: str, beats: int, pump=None) -> dict:
+    from cardiosoft.network.export_open_loop import to_svzerod
+
+    return to_svzerod(scene, units, beats, pump)
 
 
 def member_count(scene: Scene) -> int:

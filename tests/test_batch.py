@@ -127,6 +127,9 @@ def test_a_windkessel_scene_refuses_a_column_head():
 
 
 # ------------------------------------------------------------------------------ derivatives
+# slow (63 s): CI keeps its 20-minute budget; forward mode through the public solve is checked
+# in CI by tests/test_simulate.py's tangent wrt the tube length.
+@pytest.mark.slow
 def test_jacfwd_wrt_the_design_matches_central_differences(scene):
     """d(SV, peak force, M, e) / d(Omega, C) by jax.jacfwd through the public solve, at five
     designs including the corners of the domain, against central differences.
@@ -241,7 +244,7 @@ def test_shooting_conserves_the_volume_with_a_preload():
 
 
 # slow (27 s, the reference preset compiles anew): CI keeps the time budget;
-# test_jacfwd_wrt_the_design_matches_central_differences checks the derivatives in CI.
+# tests/test_design.py's search Jacobian checks the orbit's derivatives in CI.
 @pytest.mark.slow
 def test_shooting_derivative_is_that_of_the_orbit(scene):
     """d SV / d C at the periodic orbit (implicit function theorem through the Newton root)
@@ -271,10 +274,13 @@ def test_shooting_derivative_is_that_of_the_orbit(scene):
     assert float(tangent) == pytest.approx(central, rel=1e-4)
 
 
+# slow (114 s): CI keeps its 20-minute budget; the orbit's implicit derivative is checked in CI
+# by tests/test_design.py's search Jacobian against central differences of its orbits (1 %).
+@pytest.mark.slow
 def test_shooting_derivative_with_equal_steps_matches_central_differences(scene):
     """The orbit's implicit derivative (cardiosoft.shooting.orbit_beat), through the shooting solve
     and through solve_orbit from the orbit's start (the design search's way), against central
-    differences of converged orbits, in CI. 400 equal steps per beat, so that both sides of a
+    differences of converged orbits. 400 equal steps per beat, so that both sides of a
     difference see the same discretisation (as in the jacfwd test above). Measured 2026-12-02
     (3 Newton steps, cycle change 2e-13 ml): the largest relative difference over SV, peak
     force, work and efficiency fell with the step as its square, the quotient's truncation
@@ -320,7 +326,7 @@ def test_shooting_derivative_with_equal_steps_matches_central_differences(scene)
             )
 
 
-@pytest.mark.slow  # ~1 min: two compiles and 400-beat runs; the orbit's derivative is in CI above
+@pytest.mark.slow  # ~1 min: two compiles and 400-beat runs
 def test_shooting_derivative_where_newton_fails_is_that_of_the_orbit(scene):
     """Where Newton shooting fails, the beats after it are the fallback, and the derivative is
     the implicit one at their last beat (within their residual of the orbit). Newton is made to

@@ -223,5 +223,5 @@ def test_export_writes_a_closed_loop_and_refuses_the_rest(tmp_path, capsys):
     assert {v["type"] for v in model["valves"]} == {"ArctanValve"}
     assert main(["export", "--svzerod", "soft-lv", "--out", str(out)]) == 2  # exists
     assert main(["export", "--svzerod", "bench-dynamic", "--out", str(tmp_path / "b.json")]) == 2
-    assert "only the closed loops" in capsys.readouterr().err
+    assert "water column" in capsys.readouterr().err
     assert not (tmp_path / "b.json").exists()

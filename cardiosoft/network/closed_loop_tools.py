@@ -32,8 +32,8 @@ from cardiosoft.solve import rerun_settings
 __all__ = [
     "addable_effects", "column_heads", "configure", "design", "heading", "member_count",
     "plot", "preset", "run", "simulate_members", "solve_beats", "summary_records",
-    "sweep_flags", "sweep_panels", "sweep_variables", "table", "trace_columns", "uncertainty",
-    "unsupported", "verified", "verify_rerun",
+    "svzerod_model", "sweep_flags", "sweep_panels", "sweep_variables", "table",
+    "trace_columns", "uncertainty", "unsupported", "verified", "verify_rerun",
 ]  # fmt: skip
 
 _UNSUPPORTED = {
@@ -57,6 +57,12 @@ def _refuse(scene: LoopScene, what: str, option: str) -> None:
 
 def addable_effects(scene: LoopScene) -> tuple[str, ...]:
     return ()
+
+
+def svzerod_model(scene: LoopScene, units: str, beats: int, pump=None) -> dict:
+    from cardiosoft.network.export import to_svzerod
+
+    return to_svzerod(scene, units, beats, pump)
 
 
 def member_count(scene: LoopScene) -> int:

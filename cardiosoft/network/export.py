@@ -1,4 +1,8 @@
-"""``cardiosoft export --svzerod SCENE``: a shipped closed loop written as an svZeroDSolver model.
+"""``cardiosoft export --svzerod SCENE``: a scene written as an svZeroDSolver model.
+
+A closed loop is written here; an open loop with a Windkessel by
+:mod:`cardiosoft.network.export_open_loop` (each kind's ``svzerod_model``); the command is
+:mod:`cardiosoft.network.export_cli`.
 
 The loop (:class:`~cardiosoft.network.closed_loop.ClosedLoop`) becomes svZeroDSolver's blocks:
 
@@ -20,8 +24,7 @@ the scene's beats (``tests/test_network_loop.py``).
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
+import dataclasses
 
 OUTPUT_POINTS = 401
 """Points a beat in the written model: the closed loop's own samples (``LOOP_SAMPLES``)."""
@@ -123,26 +126,34 @@ def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
                 "activation_function": _activation(law.activation, period),
             }
         )
+    parts = {"vessels": vessels, "junctions": junctions, "valves": valves, "chambers": chambers}
+    extensions = ("ArctanValve", "SoftPump") if scene.pumps else ("ArctanValve",)
+    return model_file(scene.name, units, period, beats, extensions, parts, initial)
+
+
+def model_file(name, units, period, beats, extensions, parts: dict, initial: dict) -> dict:
+    """The svZeroDSolver model of the scene ``name``: its ``parts`` (``vessels``, ``valves``,
+    ...) run ``beats`` beats of ``period`` (s) from ``initial`` (no steady start-up), in
+    ``units``, described with the ``extensions`` (cardiosoft's blocks) it uses."""
+    from cardiosoft.network.pump_in_model import UNIT_SYSTEMS
+
+    system = UNIT_SYSTEMS[units]
     return {
         "description": {
-            "description of test case": f"cardiosoft scene {scene.name}, written by "
-            f"'cardiosoft export --svzerod {scene.name}'; units: {units} "
-            f"({UNIT_SYSTEMS[units][2]}, {UNIT_SYSTEMS[units][3]}, s). ArctanValve and SoftPump "
-            "are cardiosoft's extension blocks.",
+            "description of test case": f"cardiosoft scene {name}, written by "
+            f"'cardiosoft export --svzerod {name}'; units: {units} ({system[2]}, {system[3]}, "
+            f"s). cardiosoft's extension blocks in it: {', '.join(extensions)}.",
         },
         "simulation_parameters": {
             "number_of_cardiac_cycles": int(beats),
             "number_of_time_pts_per_cardiac_cycle": OUTPUT_POINTS,
-            "cardiac_period": period,
+            "cardiac_period": float(period),
             "steady_initial": False,
             "output_all_cycles": False,
             "output_variable_based": True,
         },
         "boundary_conditions": [],
-        "vessels": vessels,
-        "junctions": junctions,
-        "valves": valves,
-        "chambers": chambers,
+        **parts,
         "initial_condition": initial,
     }
 
@@ -170,71 +181,27 @@ def _activation(activation, period: float) -> dict:
 
 def _pump_entry(name, law, scene, pump, units) -> dict:
     """The ``SoftPump`` extension chamber of a pump chamber ``law``."""
+    from cardiosoft.network.pump_in_model import PumpPlacement
+
     pull = law.actuation
-    stroke = float(pull.stroke) / float(law.pump.cable_length(law.omega))
-    return {
-        "type": "SoftPump",
-        "name": name,
-        "values": {
-            "omega": float(law.omega),
-            "shortening": stroke,
-            "shape": pull.shape,
-            "pull_fraction": float(pull.pull_fraction),
-            "hold_fraction": float(pull.hold_fraction),
-            "release_fraction": float(pull.release_fraction),
-            "onset": float(law.onset),
-            "surrogate": pump or scene.pump,
-            "units": units,
-        },
-    }
-
-
-def parser(prog: str | None = None):
-    """The argument parser of ``cardiosoft export``."""
-    from cardiosoft._cli import command_parser
-    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, UNIT_SYSTEMS
-
-    p = command_parser(
-        "export", "Write a shipped closed loop as an svZeroDSolver model (JSON).", prog=prog
+    placement = PumpPlacement(
+        name,
+        units,
+        float(law.omega),
+        float(pull.stroke) / float(law.pump.cable_length(law.omega)),
+        pump or scene.pump,
+        pull.shape,
+        float(pull.pull_fraction),
+        float(pull.hold_fraction),
+        float(pull.release_fraction),
+        float(law.onset),
     )
-    p.add_argument("--svzerod", metavar="SCENE", required=True, help="a closed-loop scene")
-    p.add_argument("--out", metavar="FILE", required=True, help="the JSON file to write")
-    p.add_argument(
-        "--units",
-        choices=tuple(UNIT_SYSTEMS),
-        default=DEFAULT_UNITS,
-        help=f"the file's units (default {DEFAULT_UNITS}; mmHg: mmHg, ml, s; si: Pa, m^3, s)",
-    )
-    p.add_argument("--beats", type=int, default=10, help="beats the model runs (default 10)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
-    return p
+    return pump_entry(placement)
 
 
-def main(argv=None, prog: str | None = None) -> int:
-    """``cardiosoft export``: returns the exit status (0, or 2 for bad input)."""
-    import jax
-
-    from cardiosoft.console import fail
-    from cardiosoft.files import atomic_path, refuse_overwrite
-    from cardiosoft.scene import load_scene
-    from cardiosoft.scene_tools import check_supported
-
-    args = parser(prog).parse_args(argv)
-    jax.config.update("jax_enable_x64", True)
-    try:
-        if not 1 <= args.beats <= 500:
-            raise ValueError(f"--beats = {args.beats}: allowed 1 to 500")
-        scene = load_scene(args.svzerod)
-        check_supported(scene, "export", f"--svzerod {args.svzerod}")
-        refuse_overwrite(Path(args.out), args.force)
-        model = to_svzerod(scene, args.units, args.beats)
-    except (ValueError, OSError) as err:
-        return fail(err)
-    with atomic_path(args.out) as tmp:
-        Path(tmp).write_text(json.dumps(model, indent=2) + "\n")
-    print(f"wrote {args.out}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+def pump_entry(placement) -> dict:
+    """The ``SoftPump`` extension chamber of a
+    :class:`~cardiosoft.network.pump_in_model.PumpPlacement`: its fields, which the reader
+    takes back."""
+    values = dataclasses.asdict(placement)
+    return {"type": "SoftPump", "name": values.pop("chamber"), "values": values}

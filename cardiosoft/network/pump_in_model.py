@@ -135,12 +135,17 @@ def soft_pump(placement: PumpPlacement, ports, period: float, start_volume: floa
             f"{volume / ml:.3g} ml in {placement.units} ({volume_name}), not a heart chamber's "
             f"({lo / ml:g} to {hi / ml:g} ml){hint}: pass the model's units with --units"
         )
+    law = pump_law(placement, period)
+    return SoftPump(placement.chamber, tuple(ports), law, pressure_unit, volume_unit)
+
+
+def pump_law(placement: PumpPlacement, period: float) -> PumpChamber:
+    """The pump's chamber law (SI) for ``placement``, its pull beating at ``period`` (s)."""
     pump = load(placement.surrogate)
     stroke = placement.shortening * pump.cable_length(placement.omega)
     fractions = (placement.pull_fraction, placement.hold_fraction, placement.release_fraction)
     pull = CablePull(stroke, period, *fractions, shape=placement.shape)
-    law = PumpChamber(pump, placement.omega, pull, placement.onset)
-    return SoftPump(placement.chamber, tuple(ports), law, pressure_unit, volume_unit)
+    return PumpChamber(pump, placement.omega, pull, placement.onset)
 
 
 def pump_beat(traces, placement: PumpPlacement, nodes) -> tuple[np.ndarray, ...]:
@@ -241,4 +246,3 @@ def with_pump_draws(model, placement: PumpPlacement, pump):
         return eqx.tree_at(lambda n: n.blocks[index].law.pump, net, draw)
 
     return jax.vmap(one, in_axes=(ensemble_axes(pump),))(pump)
-

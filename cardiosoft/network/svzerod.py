@@ -55,7 +55,7 @@ from cardiosoft.network.network import Network, reduce_index
 from cardiosoft.network.ordering import order_nodes
 from cardiosoft.network.pump_in_model import PumpPlacement, soft_pump
 from cardiosoft.network.simulation_parameters import Simulation, UnsupportedModel, read_simulation
-from cardiosoft.valves import ArctanValve
+from cardiosoft.valves import ArctanValve, Valve
 
 SUPPORTED_BLOCKS = (
     "BloodVessel",
@@ -80,9 +80,10 @@ SUPPORTED_BLOCKS = (
     "LinearElastanceChamber",
 )
 """svZeroDSolver block types the reader takes."""
-EXTENSION_BLOCKS = ("ArctanValve", "SoftPump")
+EXTENSION_BLOCKS = ("ArctanValve", "SmoothValve", "SoftPump")
 """cardiosoft's own blocks, which ``cardiosoft export --svzerod`` writes and the reader takes
-(a valve and a chamber; svZeroDSolver itself has neither)."""
+(two valve laws and a chamber; svZeroDSolver itself has none of them)."""
+
 
 @dataclass(frozen=True)
 class Model:
@@ -332,6 +333,7 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
             "ValveTanh": ("Rmax", "Rmin", "Steepness"),
             "PiecewiseValve": ("Rmax", "Rmin"),
             "ArctanValve": ("Rmax", "Rmin", "sharpness"),
+            "SmoothValve": ("R", "smoothing"),
         }
         if kind not in numbers:
             raise UnsupportedModel(f"block type {kind!r} (valve {vname}) is not supported")
@@ -342,6 +344,8 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
         if kind == "ArctanValve":  # cardiosoft's extension: Regazzoni's law
             law = ArctanValve(p["Rmin"], p["Rmax"], p["sharpness"])
             cls, kwargs = LawValve, {"law": law}
+        elif kind == "SmoothValve":  # cardiosoft's extension: the open loops' valve law
+            cls, kwargs = LawValve, {"law": Valve(p["R"], "smooth", p["smoothing"])}
         else:
             cls = ValveTanh if kind == "ValveTanh" else PiecewiseValve
             kwargs = _arrays(kwargs, kwargs)
