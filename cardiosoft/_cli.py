@@ -66,20 +66,16 @@ def allowed(field: str, left: str = "[") -> str:
 
 
 def add_scene_option(
-    parser, *, static: bool = True, loops: bool = False, models: bool = False
+    parser, *, static: bool = True, loops: bool = False, models: str | None = None
 ) -> None:
     """``--scene``: a shipped scene or a .toml file (``static``: bench-static listed too;
-    ``loops``: the closed-loop scenes too; ``models``: an svZeroDSolver model too)."""
+    ``loops``: the closed-loop scenes too; ``models``: an svZeroDSolver model too, and what the
+    command does with it)."""
     from cardiosoft.scene import LOOP_SCENE_NAMES, SCENE_NAMES
 
     names = [s for s in SCENE_NAMES if static or s != "bench-static"]
     closed = f"; closed loops: {', '.join(LOOP_SCENE_NAMES)}" if loops else ""
-    model = (
-        ", or an svZeroDSolver model .json (run as svZeroDSolver runs it; --out writes "
-        "traces.csv under its variable names)"
-        if models
-        else ""
-    )
+    model = f", or an svZeroDSolver model .json ({models})" if models else ""
     parser.add_argument(
         "--scene",
         default="bench-dynamic",

@@ -56,7 +56,11 @@ def parser(prog: str | None = None):
         failure="a member's solve failed or it did not reach the periodic steady state",
         output="summary.json",
     )
-    add_scene_option(p, loops=True, models=True)
+    add_scene_option(
+        p,
+        loops=True,
+        models="run as svZeroDSolver runs it; --out writes traces.csv under its variable names",
+    )
     p.add_argument(
         "--bpm", type=float, help=f"beats per minute, {allowed('bpm', '(')} (default: the scene's)"
     )

@@ -48,11 +48,16 @@ volume, the cardiac output and the pump's peak force. Each kind of scene names i
 panels and flags (``sweep_variables``, ``sweep_panels``, ``sweep_flags`` of
 :func:`cardiosoft.scene_tools.tools`).
 
+**An svZeroDSolver model** with the pump in place of one of its chambers (``--scene model.json
+--pump-chamber NAME``) is swept by :func:`cardiosoft.sweep.model.model_sweep`: the same grid of
+designs, ``sweep.nc`` and maps, its variables the model's records by ``BLOCK.KEY``.
+
 **Where it lives.** :mod:`~cardiosoft.sweep.plan` (the grid, its chunks, validation),
 :mod:`~cardiosoft.sweep.chunk` (one chunk's task and solve, the variables, ``status``),
 :mod:`~cardiosoft.sweep.executor` (this process or Dask), :mod:`~cardiosoft.sweep.store`
 (unfinished sweeps, NetCDF), :mod:`~cardiosoft.sweep.maps` (figures),
-:mod:`~cardiosoft.sweep.runner` (:func:`design_sweep`) and :mod:`~cardiosoft.sweep.cli`.
+:mod:`~cardiosoft.sweep.runner` (:func:`design_sweep`), :mod:`~cardiosoft.sweep.model` (a
+model's sweep) and :mod:`~cardiosoft.sweep.cli`.
 """
 
 from cardiosoft._validate import parse_values

@@ -42,7 +42,9 @@ def parser(prog: str | None = None):
         failure="a point failed, or did not reach the periodic steady state it was run to",
         output="sweep.nc ('steady', 'status')",
     )
-    add_scene_option(p, static=False, loops=True)
+    add_scene_option(
+        p, static=False, loops=True, models="with --pump-chamber: the pump swept in its place"
+    )
     p.add_argument("--omega", required=True, metavar="START:STOP:N", help="helix parameter grid")
     p.add_argument(
         "--shortening", required=True, metavar="START:STOP:N", help="cable shortening C grid"
@@ -86,10 +88,62 @@ def parser(prog: str | None = None):
         help="with --uncertainty: the posterior's first N draws (default 16: a sweep solves "
         "N times its points)",
     )
+    _model_options(p)
     add_output_options(p, "DIR/sweep.nc and DIR/map-*.png")
     p.add_argument("--no-maps", action="store_true", help="with --out: skip the figures")
     add_report_options(p)
     return p
+
+
+MODEL_OPTIONS = ("pump_chamber", "units")
+"""Options of ``sweep`` that only an svZeroDSolver model takes."""
+NOT_FOR_MODELS = ("afterload", "bpm", "beats", "workers", "scheduler", "resume", "uncertainty")
+"""Options of ``sweep`` an svZeroDSolver model does not take (:mod:`cardiosoft.sweep.model`)."""
+
+
+def _model_options(p) -> None:
+    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, UNIT_SYSTEMS
+
+    model = p.add_argument_group("svZeroDSolver models (--scene model.json)")
+    model.add_argument(
+        "--pump-chamber",
+        metavar="NAME",
+        help="sweep the soft pump's design in place of the model's chamber NAME",
+    )
+    model.add_argument(
+        "--units",
+        choices=tuple(UNIT_SYSTEMS),
+        help=f"the model's units (default {DEFAULT_UNITS}; mmHg: mmHg, ml, s; si: Pa, m^3, s)",
+    )
+
+
+def _model_sweep(args, console: Console):
+    """The sweep of the pump in the model ``args.scene`` (:func:`cardiosoft.sweep.model.
+    model_sweep`): its Dataset. ``ValueError`` for what a model's sweep does not take."""
+    from cardiosoft.network import UnsupportedModel
+    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, PumpPlacement
+    from cardiosoft.sweep.model import model_sweep
+
+    for option in NOT_FOR_MODELS:
+        if getattr(args, option) not in (None, False):
+            raise ValueError(
+                f"--{option}: not taken on an svZeroDSolver model (its pump is swept over Omega "
+                "x C at the model's own rate and heads, to its periodic steady state, in this "
+                "process)"
+            )
+    if args.pump_chamber is None:
+        raise ValueError(
+            "--pump-chamber: missing; name the model's chamber the soft pump takes the place of"
+        )
+    placement = PumpPlacement(args.pump_chamber, args.units or DEFAULT_UNITS, surrogate=args.pump)
+    try:
+        return model_sweep(
+            args.scene, placement, omega=args.omega, shortening=args.shortening,
+            accuracy=args.accuracy or "default", chunk=args.chunk, out=args.out,
+            force=args.force, maps=not args.no_maps, progress=not args.quiet, log=console.say,
+        )  # fmt: skip
+    except UnsupportedModel as err:
+        raise ValueError(f"--scene {args.scene}: {err}") from None
 
 
 def _best(cut, name: str, coords) -> str:
@@ -151,37 +205,23 @@ def main(argv=None, prog: str | None = None) -> int:
 
     args = parser(prog).parse_args(argv)
     jax.config.update("jax_enable_x64", True)
-    import warnings
 
     console = Console(quiet=args.quiet, strict=args.strict)
+    model = args.scene.endswith(".json")  # an svZeroDSolver model, with the pump in it
     try:
         _check(args)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # Dask's notes on ports and memory are not errors
-            ds = design_sweep(
-                args.scene if args.pump is None else load_scene(args.scene, pump=args.pump),
-                omega=args.omega,
-                shortening=args.shortening,
-                afterload=values_argument(args.afterload),
-                bpm=values_argument(args.bpm),
-                beats=args.beats,
-                accuracy=args.accuracy,
-                out=args.out,
-                chunk=args.chunk,
-                workers=args.workers,
-                scheduler=args.scheduler,
-                resume=args.resume,
-                force=args.force,
-                maps=not args.no_maps,
-                progress=not args.quiet,
-                uncertainty=args.draws if args.uncertainty else None,
-                log=console.say,
-            )
+        for option in () if model else MODEL_OPTIONS:
+            if getattr(args, option) is not None:
+                flag = "--" + option.replace("_", "-")
+                raise ValueError(f"{flag}: only with an svZeroDSolver model (--scene *.json)")
+        ds = _model_sweep(args, console) if model else _scene_sweep(args, console)
     except (ValueError, FileNotFoundError) as err:
         return fail(err)
     except KeyboardInterrupt:
         where = (
-            f"; rerun with --resume to continue ({Path(args.out) / PARTIAL})" if args.out else ""
+            f"; rerun with --resume to continue ({Path(args.out) / PARTIAL})"
+            if args.out and not model
+            else ""
         )
         print(f"interrupted{where}", file=sys.stderr)
         return 130
@@ -190,6 +230,33 @@ def main(argv=None, prog: str | None = None) -> int:
     report_points(console, ds, fixed_beats=args.beats is not None)
     ds.close()
     return console.status()
+
+
+def _scene_sweep(args, console: Console):
+    """The sweep of a scene (:func:`cardiosoft.sweep.design_sweep`): its Dataset."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Dask's notes on ports and memory are not errors
+        return design_sweep(
+            args.scene if args.pump is None else load_scene(args.scene, pump=args.pump),
+            omega=args.omega,
+            shortening=args.shortening,
+            afterload=values_argument(args.afterload),
+            bpm=values_argument(args.bpm),
+            beats=args.beats,
+            accuracy=args.accuracy,
+            out=args.out,
+            chunk=args.chunk,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            resume=args.resume,
+            force=args.force,
+            maps=not args.no_maps,
+            progress=not args.quiet,
+            uncertainty=args.draws if args.uncertainty else None,
+            log=console.say,
+        )
 
 
 def report_points(console: Console, ds, fixed_beats: bool) -> None:
