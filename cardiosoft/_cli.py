@@ -85,6 +85,36 @@ def add_scene_option(
     add_pump_option(parser)
 
 
+MODEL_OPTIONS = ("pump_chamber", "units")
+"""The options that only an svZeroDSolver model takes (:func:`add_model_options`)."""
+
+
+def add_model_options(parser, pump_chamber: str):
+    """The group of options for an svZeroDSolver model (``--scene model.json``):
+    ``--pump-chamber NAME`` (``pump_chamber``: what the command does with the pump there) and
+    ``--units``. Returns the group, for a command's own model options."""
+    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, UNIT_SYSTEMS
+
+    group = parser.add_argument_group("svZeroDSolver models (--scene model.json)")
+    group.add_argument("--pump-chamber", metavar="NAME", help=pump_chamber)
+    group.add_argument(
+        "--units",
+        choices=tuple(UNIT_SYSTEMS),
+        help=f"the model's units, where the pump (SI inside) meets it (default {DEFAULT_UNITS}; "
+        "mmHg: mmHg, ml, s; si: Pa, m^3, s)",
+    )
+    return group
+
+
+def refuse_model_options(args, own: tuple[str, ...] = ()) -> None:
+    """``ValueError`` naming the first of :data:`MODEL_OPTIONS` and the command's ``own`` model
+    options given with a scene that is not an svZeroDSolver model."""
+    for option in (*MODEL_OPTIONS, *own):
+        if getattr(args, option, None) is not None:
+            flag = "--" + option.replace("_", "-")
+            raise ValueError(f"{flag}: only with an svZeroDSolver model (--scene *.json)")
+
+
 def add_pump_option(parser) -> None:
     """``--pump``: the surrogate a scene runs, in place of the scene's own (its key 'pump')."""
     from cardiosoft.pump import DEFAULT_ARTIFACT, SHIPPED_ARTIFACTS

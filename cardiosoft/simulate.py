@@ -38,6 +38,7 @@ UNCERTAINTY_DRAWS = 48
 def parser(prog: str | None = None):
     """The argument parser of ``cardiosoft simulate``."""
     from cardiosoft._cli import (
+        add_model_options,
         add_output_options,
         add_report_options,
         add_scene_option,
@@ -144,20 +145,10 @@ def parser(prog: str | None = None):
         "compliance) would narrow it (linear over all the posterior's draws: two batched "
         "solves of them, about a minute more)",
     )
-    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, UNIT_SYSTEMS
-
-    model = p.add_argument_group("svZeroDSolver models (--scene model.json)")
-    model.add_argument(
-        "--pump-chamber",
-        metavar="NAME",
-        help="put the soft pump (--omega, --shortening, --pump; default the prototype) in "
-        "place of the model's chamber NAME",
-    )
-    model.add_argument(
-        "--units",
-        choices=tuple(UNIT_SYSTEMS),
-        help=f"with --pump-chamber: the model's units (default {DEFAULT_UNITS}; mmHg: mmHg, "
-        "ml, s; si: Pa, m^3, s), where the pump (SI inside) meets it",
+    add_model_options(
+        p,
+        "put the soft pump (--omega, --shortening, --pump; default the prototype) in place of "
+        "the model's chamber NAME",
     )
     add_output_options(p, "summary.json, traces.csv, figure.png", plot="the figure")
     add_report_options(p)
@@ -334,10 +325,12 @@ def main(argv=None, prog: str | None = None) -> int:
         from cardiosoft.network.cli import simulate_model
 
         return simulate_model(args, console)
-    for option in ("pump_chamber", "units"):
-        if getattr(args, option) is not None:
-            flag = "--" + option.replace("_", "-")
-            return fail(ValueError(f"{flag}: only with an svZeroDSolver model (--scene *.json)"))
+    from cardiosoft._cli import refuse_model_options
+
+    try:
+        refuse_model_options(args)
+    except ValueError as err:
+        return fail(err)
     args.steady = args.steady or "beats"  # a scene always runs to its periodic steady state
     out_dir = Path(args.out) if args.out else None
     posterior = every_draw = None

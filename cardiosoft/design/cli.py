@@ -9,11 +9,13 @@ import json
 from pathlib import Path
 
 from cardiosoft._cli import (
+    add_model_options,
     add_output_options,
     add_report_options,
     add_scene_option,
     allowed,
     command_parser,
+    refuse_model_options,
 )
 from cardiosoft.console import Console, fail, fmt, table
 from cardiosoft.design.problem import (
@@ -138,19 +140,10 @@ def _search_options(p) -> None:
 
 
 def _model_options(p) -> None:
-    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, UNIT_SYSTEMS
-
-    model = p.add_argument_group("svZeroDSolver models (--scene model.json)")
-    model.add_argument(
-        "--pump-chamber",
-        metavar="NAME",
-        help="design the soft pump in place of the model's chamber NAME (its Omega and C; "
-        "--free to hold one)",
-    )
-    model.add_argument(
-        "--units",
-        choices=tuple(UNIT_SYSTEMS),
-        help=f"the model's units (default {DEFAULT_UNITS}; mmHg: mmHg, ml, s; si: Pa, m^3, s)",
+    model = add_model_options(
+        p,
+        "design the soft pump in place of the model's chamber NAME (its Omega and C; --free "
+        "to hold one)",
     )
     model.add_argument(
         "--target",
@@ -378,7 +371,6 @@ def main(argv=None, prog: str | None = None) -> int:
 
     args = parser(prog).parse_args(argv)
     jax.config.update("jax_enable_x64", True)
-    from cardiosoft.design.model_cli import MODEL_OPTIONS
     from cardiosoft.files import refuse_overwrite
     from cardiosoft.scene import load_scene
     from cardiosoft.scene_tools import tools
@@ -392,10 +384,8 @@ def main(argv=None, prog: str | None = None) -> int:
                 raise ValueError(f"--out {out_dir} exists and is not a folder")
             for name in OUTPUT_FILES:
                 refuse_overwrite(out_dir / name, args.force)
-        for option in () if model else MODEL_OPTIONS:
-            if getattr(args, option) is not None:
-                flag = "--" + option.replace("_", "-")
-                raise ValueError(f"{flag}: only with an svZeroDSolver model (--scene *.json)")
+        if not model:
+            refuse_model_options(args, own=("target",))
         if model:
             from cardiosoft.design.model_cli import run_model_design
 

@@ -14,10 +14,6 @@ from cardiosoft.design.loop_cli import refuse_options
 
 __all__ = ["model_arguments", "model_report", "run_model_design"]
 
-MODEL_OPTIONS = ("pump_chamber", "units", "target")
-"""Options of ``design`` that only an svZeroDSolver model takes."""
-
-
 def _target(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
     try:

@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 
 from cardiosoft._cli import (
+    add_model_options,
     add_output_options,
     add_report_options,
     add_scene_option,
     command_parser,
+    refuse_model_options,
     values_argument,
 )
 from cardiosoft.console import Console, fail
@@ -88,33 +90,15 @@ def parser(prog: str | None = None):
         help="with --uncertainty: the posterior's first N draws (default 16: a sweep solves "
         "N times its points)",
     )
-    _model_options(p)
+    add_model_options(p, "sweep the soft pump's design in place of the model's chamber NAME")
     add_output_options(p, "DIR/sweep.nc and DIR/map-*.png")
     p.add_argument("--no-maps", action="store_true", help="with --out: skip the figures")
     add_report_options(p)
     return p
 
 
-MODEL_OPTIONS = ("pump_chamber", "units")
-"""Options of ``sweep`` that only an svZeroDSolver model takes."""
 NOT_FOR_MODELS = ("afterload", "bpm", "beats", "workers", "scheduler", "resume", "uncertainty")
 """Options of ``sweep`` an svZeroDSolver model does not take (:mod:`cardiosoft.sweep.model`)."""
-
-
-def _model_options(p) -> None:
-    from cardiosoft.network.pump_in_model import DEFAULT_UNITS, UNIT_SYSTEMS
-
-    model = p.add_argument_group("svZeroDSolver models (--scene model.json)")
-    model.add_argument(
-        "--pump-chamber",
-        metavar="NAME",
-        help="sweep the soft pump's design in place of the model's chamber NAME",
-    )
-    model.add_argument(
-        "--units",
-        choices=tuple(UNIT_SYSTEMS),
-        help=f"the model's units (default {DEFAULT_UNITS}; mmHg: mmHg, ml, s; si: Pa, m^3, s)",
-    )
 
 
 def _model_sweep(args, console: Console):
@@ -210,10 +194,8 @@ def main(argv=None, prog: str | None = None) -> int:
     model = args.scene.endswith(".json")  # an svZeroDSolver model, with the pump in it
     try:
         _check(args)
-        for option in () if model else MODEL_OPTIONS:
-            if getattr(args, option) is not None:
-                flag = "--" + option.replace("_", "-")
-                raise ValueError(f"{flag}: only with an svZeroDSolver model (--scene *.json)")
+        if not model:
+            refuse_model_options(args)
         ds = _model_sweep(args, console) if model else _scene_sweep(args, console)
     except (ValueError, FileNotFoundError) as err:
         return fail(err)
