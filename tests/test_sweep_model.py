@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import xarray as xr
 
@@ -12,7 +14,7 @@ from cardiosoft.network import read, simulate
 from cardiosoft.network.pump_in_model import PumpPlacement, placed_records
 from cardiosoft.sweep.model import model_sweep
 
-MODEL = "tests/data/svzerod/closed_loop_two_hill.json"
+MODEL = Path(__file__).parent / "data" / "svzerod" / "closed_loop_two_hill.json"
 STEADY_AGREEMENT = 1e-3
 """A point of the sweep against the same design solved alone, relative: a batch runs until
 every variant is steady, so a point may run a beat more than alone, and at the steady state a
@@ -58,7 +60,7 @@ def test_each_point_of_a_model_sweep_is_its_design_solved_alone(tmp_path):
 )
 def test_a_model_sweep_refuses_in_one_line_and_writes_nothing(tmp_path, capsys, extra, words):
     out = tmp_path / "maps"
-    argv = ["sweep", "--scene", MODEL, "--omega", "3:5:2", "--shortening", "0.4", "--out"]
+    argv = ["sweep", "--scene", str(MODEL), "--omega", "3:5:2", "--shortening", "0.4", "--out"]
     assert main([*argv, str(out), *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and len(err.splitlines()) == 1
