@@ -187,14 +187,14 @@ def _pump_entry(name, law, scene, pump, units) -> dict:
     placement = PumpPlacement(
         name,
         units,
-        float(law.omega),
-        float(pull.stroke) / float(law.pump.cable_length(law.omega)),
-        pump or scene.pump,
-        pull.shape,
-        float(pull.pull_fraction),
-        float(pull.hold_fraction),
-        float(pull.release_fraction),
-        float(law.onset),
+        omega=float(law.omega),
+        shortening=float(pull.stroke) / float(law.pump.cable_length(law.omega)),
+        surrogate=pump or scene.pump,
+        shape=pull.shape,
+        pull_fraction=float(pull.pull_fraction),
+        hold_fraction=float(pull.hold_fraction),
+        release_fraction=float(pull.release_fraction),
+        onset=float(law.onset),
     )
     return pump_entry(placement)
 

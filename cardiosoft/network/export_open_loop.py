@@ -72,13 +72,13 @@ def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
     placement = PumpPlacement(
         "pump",
         units,
-        scene.omega,
-        scene.shortening,
-        pump or scene.pump,
-        scene.shape,
-        scene.pull_fraction,
-        scene.hold_fraction,
-        scene.release_fraction,
+        omega=scene.omega,
+        shortening=scene.shortening,
+        surrogate=pump or scene.pump,
+        shape=scene.shape,
+        pull_fraction=scene.pull_fraction,
+        hold_fraction=scene.hold_fraction,
+        release_fraction=scene.release_fraction,
     )
     start_volume = pump_law(placement, period).start_volume(preload.p_atrial)
 

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from cardiosoft.sweep.chunk import CHUNK_FAILED, NONFINITE, NOT_STEADY, OK, SOLVER_FAILED, STATUS
-from cardiosoft.sweep.plan import DEFAULT_CHUNK
+from cardiosoft.sweep.plan import DEFAULT_CHUNK, chunk_size, design_grid
 
 __all__ = ["model_sweep"]
 
@@ -112,27 +112,21 @@ def model_sweep(
     or written."""
     import xarray as xr
 
-    from cardiosoft._validate import check_range, parse_values
     from cardiosoft.design.model import metric_names
     from cardiosoft.files import atomic_path, refuse_overwrite
     from cardiosoft.network import read
     from cardiosoft.progress import bar as progress_bar
     from cardiosoft.pump import load_card
-    from cardiosoft.scene import ACCURACY, RANGES
+    from cardiosoft.scene import ACCURACY
     from cardiosoft.sweep.maps import map_name, plot_maps
     from cardiosoft.sweep.plan import version
 
     say = log or (lambda message: None)
-    coords = {
-        "omega": parse_values(omega, "omega"),
-        "shortening": parse_values(shortening, "shortening"),
-    }
-    check_range("omega", coords["omega"], "", *RANGES["omega"])
-    check_range("shortening C", coords["shortening"], "", *RANGES["shortening"])
+    coords = design_grid(omega, shortening)
     if accuracy not in ACCURACY:
         raise ValueError(f"accuracy = {accuracy!r}: allowed {', '.join(ACCURACY)}")
-    if isinstance(chunk, bool) or not isinstance(chunk, int | np.integer) or chunk < 1:
-        raise ValueError(f"chunk = {chunk!r}: allowed a whole number of points >= 1")
+    size = len(coords["omega"]) * len(coords["shortening"])
+    chunk = chunk_size(chunk, size)
     model = read(path, pump=placement)
     names = metric_names(model, placement)
     period = float(model.network.period)
@@ -144,8 +138,6 @@ def model_sweep(
         if maps:
             refuse_overwrite(out_dir / map_name(None, 60.0 / period), force)
     designs = np.array(list(itertools.product(coords["omega"], coords["shortening"])), float)
-    size = len(designs)
-    chunk = int(min(chunk, size))
     n_chunks = math.ceil(size / chunk)
     say(
         f"{model.name}: the soft pump in place of {placement.chamber}, {size} designs in "

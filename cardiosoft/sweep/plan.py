@@ -159,12 +159,7 @@ def make_plan(
             f"scene {scene.name} is static (no beats to simulate): sweep a dynamic scene "
             "such as bench-dynamic"
         )
-    coords = {
-        "omega": parse_values(omega, "omega"),
-        "shortening": parse_values(shortening, "shortening"),
-    }
-    check_range("omega", coords["omega"], "", *RANGES["omega"])
-    check_range("shortening C", coords["shortening"], "", *RANGES["shortening"])
+    coords = design_grid(omega, shortening)
     # a scene without a pump to design (the native heart) says so now, not in every chunk
     tools(scene).configure(scene, omega=coords["omega"][0], shortening=coords["shortening"][0])
     given = None if afterload is None else parse_values(afterload, "afterload")
@@ -178,10 +173,7 @@ def make_plan(
             raise ValueError(f"beats = {beats!r}: allowed a whole number in [1, 500]")
         check_range("beats", beats, "beats", 1, 500)
         beats = int(beats)
-    if isinstance(chunk, bool) or not isinstance(chunk, int | np.integer) or chunk < 1:
-        raise ValueError(f"chunk = {chunk!r}: allowed a whole number of points >= 1")
-    size = math.prod(len(v) for v in coords.values())
-    chunk = int(min(chunk, size))  # a small grid is one chunk of its own size
+    chunk = chunk_size(chunk, math.prod(len(v) for v in coords.values()))
     if pump is None and scene.pump != DEFAULT_ARTIFACT:
         pump = scene.pump  # the scene's own surrogate (its key 'pump')
     pump, name, digest = surrogate_of(pump)
@@ -202,6 +194,29 @@ def make_plan(
             raise ValueError(f"draws = {draws!r}: allowed 2 to {total} (the posterior's draws)")
         draws = int(draws)
     return Plan(scene, coords, beats, chunk, pump, name, digest, precision, draws)
+
+
+def design_grid(omega, shortening) -> dict:
+    """The swept designs ``{"omega": values, "shortening": values}`` from their forms
+    (:func:`~cardiosoft._validate.parse_values`), checked against the design range."""
+    from cardiosoft._validate import check_range
+    from cardiosoft.scene import RANGES
+
+    coords = {
+        "omega": parse_values(omega, "omega"),
+        "shortening": parse_values(shortening, "shortening"),
+    }
+    check_range("omega", coords["omega"], "", *RANGES["omega"])
+    check_range("shortening C", coords["shortening"], "", *RANGES["shortening"])
+    return coords
+
+
+def chunk_size(chunk, size: int) -> int:
+    """The points a chunk holds: ``chunk``, checked, and no more than the grid's ``size`` (a
+    small grid is one chunk of its own size)."""
+    if isinstance(chunk, bool) or not isinstance(chunk, int | np.integer) or chunk < 1:
+        raise ValueError(f"chunk = {chunk!r}: allowed a whole number of points >= 1")
+    return int(min(chunk, size))
 
 
 def surrogate_of(pump):
