@@ -457,6 +457,9 @@ def test_cli_refuses_bad_input_for_a_loop_in_one_line(tmp_path, args, message):
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
+# slow (31 s): CI keeps its 20-minute budget; tests/test_verify_estimate.py checks a closed
+# loop's --verify (soft-lv) in CI.
+@pytest.mark.slow
 def test_cli_verifies_a_loop(tmp_path):
     """``--verify`` on a closed loop: summary.json's ``verification`` holds every number of the
     loop's record against a rerun at the reference preset (the estimate itself is held to the

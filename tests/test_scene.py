@@ -458,6 +458,8 @@ def test_negligible_effects_agree_with_the_effects_off(effect_runs, metric):
             assert a.metrics[metric] == pytest.approx(b.metrics[metric], rel=rel)
 
 
+# slow, with the test above: effect_runs (five 20-beat runs) took 100 s of CI's 20 minutes
+@pytest.mark.slow
 def test_unit_minor_loss_is_not_negligible(effect_runs):
     """The comparison above is not vacuous: with K = 1 the loss changes SV 100 times more than
     its tolerance (in the calibrated 19-mm tube the exit loss is small: 0.3 % at 30 mmHg)."""
@@ -465,6 +467,7 @@ def test_unit_minor_loss_is_not_negligible(effect_runs):
         assert abs(a.metrics["stroke_volume"] / b.metrics["stroke_volume"] - 1) > 1e-4
 
 
+@pytest.mark.slow
 def test_calibrated_viscoelasticity_is_not_negligible(effect_runs):
     """Nor for the shell: it changes the bench's SV at 90 mmHg by more than 2 % (with the
     ss950-v3 calibration it lowers it by 2.8 %: the tube's inertia, not the shell, is what

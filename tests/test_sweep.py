@@ -522,6 +522,9 @@ def test_help_runs_without_the_runpy_warning(tmp_path):
     assert "usage: python -m cardiosoft.sweep" in out.stdout
 
 
+# slow (46 s): CI keeps its 20-minute budget; tests/test_posterior.py checks simulate's own
+# bands in CI, and this test that the sweep's equal them.
+@pytest.mark.slow
 def test_uncertainty_adds_the_bands_that_simulate_computes():
     """``uncertainty=N``: each point's band variables are the predictive bands that
     cardiosoft.posterior gives the same member by itself (the path of simulate

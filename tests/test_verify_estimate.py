@@ -170,6 +170,9 @@ def test_verify_difference_estimates_the_true_error(name):
         assert abs(ratio - 1) <= ESTIMATE_TOLERANCE, f"{label} {key}: ratio {ratio:.3g}\n{table}"
 
 
+# slow (29 s): CI keeps its 20-minute budget; tests/test_pump_in_model.py runs --verify on a
+# model in CI, and the two scenes above check the estimate itself.
+@pytest.mark.slow
 def test_verify_difference_estimates_the_true_error_of_the_pump_in_a_model(tmp_path):
     """The soft pump in upstream's two-hill closed loop, run as the circulation how-to runs it
     with ``--verify``: ``summary.json``'s difference of the pump's SV and peak force against
