@@ -46,6 +46,7 @@ from scipy.integrate import solve_ivp  # noqa: E402
 import cardiosoft  # noqa: E402
 from cardiosoft import load_pump, load_scene, run, scene_circuit, solve_beats  # noqa: E402
 from cardiosoft.batch import SAMPLES_PER_BEAT, SAVE_MODES, default_config  # noqa: E402
+from cardiosoft.solve import solver_name  # noqa: E402
 from cardiosoft.units import ml, mmHg  # noqa: E402
 
 SCENE = "bench-dynamic"
@@ -123,7 +124,7 @@ def section_presets(scene, pump):
     rows, seen, calls = {}, [], {}
     for name in ("reference", "default", "fast"):  # reference first: the others compare to it
         config = scene_config(scene, name)
-        static_key = (type(config.solver).__name__, config.max_steps, config.dt0)
+        static_key = (solver_name(config), config.max_steps, config.dt0)
         calls[name] = lambda c=config: solve_beats(scene, afterload=heads, pump=pump, config=c)
         first = first_call(calls[name])
         rows[name] = dict(

@@ -68,7 +68,7 @@ import cardiosoft  # noqa: E402
 from cardiosoft import load_pump, load_scene, preset, scene_circuit, solve_beats  # noqa: E402
 from cardiosoft.batch import PULL_SAMPLES, SAMPLES_PER_BEAT, default_config  # noqa: E402
 from cardiosoft.scene import SCENE_NAMES  # noqa: E402
-from cardiosoft.solve import integrate  # noqa: E402
+from cardiosoft.solve import integrate, solver_name  # noqa: E402
 from cardiosoft.static import column_stiffness, quasi_static_stroke  # noqa: E402
 from cardiosoft.units import RHO_WATER, G, ml, mmHg  # noqa: E402
 from cardiosoft.verify import STATIC_POINTS as LIBRARY_POINTS  # noqa: E402
@@ -220,7 +220,7 @@ def preset_config(scene, name: str):
 
 def solvers(scene, smoke: bool) -> tuple[str, ...]:
     """The solvers that make sense for ``scene``; with ``smoke``, its preset solver and Dopri8."""
-    own = type(default_config(scene).solver).__name__
+    own = solver_name(default_config(scene))
     every = ("Tsit5", "Dopri8", "Kvaerno5") if scene.has("valves") else ("Tsit5", "Dopri8")
     return tuple(m for m in every if not smoke or m in (own, REFERENCE[0]))
 
@@ -257,10 +257,10 @@ def study_dynamic(name: str, *, smoke: bool = False, pump=None, repeat: int = 3)
             configs[method, f"rtol {rtol:.0e}"] = solver_config(scene, method, rtol, atol)
     for p in PRESETS:
         config = preset_config(scene, p)
-        configs[type(config.solver).__name__, f"preset {p}"] = config
+        configs[solver_name(config), f"preset {p}"] = config
     ref_method, ref_rtol, ref_atol = REFERENCE
     configs[ref_method, "reference"] = solver_config(scene, ref_method, ref_rtol, ref_atol)
-    own = type(default_config(scene).solver).__name__
+    own = solver_name(default_config(scene))
     configs[own, "check"] = solver_config(scene, own, CHECK_RTOL, CHECK_RTOL * ref_atol / ref_rtol)
 
     compile_seconds, points, calls = {}, [], {}

@@ -69,7 +69,6 @@ import dataclasses
 import math
 import os
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -215,7 +214,7 @@ def _head(scene: Scene):
 def default_config(scene: Scene) -> SolverConfig:
     """The scene's accuracy preset, stiff when it has valves, in forward mode (module docstring)."""
     config = preset(scene.accuracy, stiff=scene.has("valves"))
-    return dataclasses.replace(config, adjoint=diffrax.ForwardMode())
+    return dataclasses.replace(config, adjoint="ForwardMode")
 
 
 def _members(scene: Scene, omega, shortening, bpm_value, afterload) -> dict:

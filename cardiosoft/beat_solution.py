@@ -9,7 +9,6 @@
 
 from __future__ import annotations
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -17,6 +16,7 @@ import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.metrics import BeatMetrics
+from cardiosoft.solve import SUCCESSFUL, result_message
 
 __all__ = [
     "GUESS_BEATS",
@@ -52,7 +52,8 @@ class BeatSolution(eqx.Module):
       :func:`~cardiosoft.batch.solve_orbit` starts.
     - ``beats``: beats integrated; ``residual``: the cycle-to-cycle change of the last beat
       (ml, ml/s or mmHg); ``volume_drift``: the largest relative change of the total fluid
-      volume; ``result``: diffrax's result; ``num_steps``: solver steps of the last beat;
+      volume; ``result``: diffrax's result code (0 successful; in words
+      :func:`cardiosoft.solve.result_message`); ``num_steps``: solver steps of the last beat;
       ``newton_steps``: Newton iterations of ``steady="shooting"`` (0 otherwise).
     - ``steady_tol`` (static): the scene's tolerance ``residual`` is held to, also with a fixed
       number of beats (``fixed_beats``), which may end before the steady state.
@@ -65,7 +66,7 @@ class BeatSolution(eqx.Module):
     beats: jax.Array
     residual: jax.Array
     volume_drift: jax.Array
-    result: diffrax.RESULTS
+    result: jax.Array
     num_steps: jax.Array
     newton_steps: jax.Array
     steady_tol: float = eqx.field(static=True)
@@ -75,7 +76,7 @@ class BeatSolution(eqx.Module):
     @property
     def succeeded(self) -> jax.Array:
         """Per member: the solver finished every beat."""
-        return diffrax.is_successful(self.result)
+        return self.result == SUCCESSFUL
 
     @property
     def steady(self) -> jax.Array:
@@ -87,14 +88,14 @@ class BeatSolution(eqx.Module):
         """Member ``i`` in words: ``"ok"``, not steady, or why the solver failed."""
         beats = int(self.beats[i])
         if not bool(self.succeeded[i]):
-            reason = diffrax.RESULTS[jax.tree_util.tree_map(lambda a: a[i], self.result)]
+            reason = result_message(self.result[i])
             hint = ""
-            if "max_steps" in str(reason):
+            if "max_steps" in reason:
                 hint = (
                     f" ({self.max_steps} per beat now: run(max_steps=...), --max-steps; or a "
                     "looser accuracy preset)"
                 )
-            return f"solver failed in beat {beats}: {str(reason).strip()}{hint}"
+            return f"solver failed in beat {beats}: {reason}{hint}"
         if not bool(self.steady[i]):
             return (
                 f"not steady after {beats} beats (cycle change {float(self.residual[i]):.3g} > "

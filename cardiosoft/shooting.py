@@ -13,15 +13,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 
 from cardiosoft.solve import (
     ACCUMULATORS,
     PERIODIC_SCALES,
+    SUCCESSFUL,
     Beats,
     SolverConfig,
     _cycle_residual,
@@ -85,6 +84,8 @@ def shoot_periodic(
     costs about one beat per state component more). The arguments are those of
     :func:`periodic_beats`.
     """
+    import optimistix as optx  # where a solve is traced (cardiosoft.solve's docstring)
+
     config = preset("default") if config is None else config
     v_ref = total_volume(y0)
     field_f, y0_f, period_f, jump_ts_f, v_ref_f = _frozen((field, y0, period, jump_ts, v_ref))
@@ -107,7 +108,7 @@ def shoot_periodic(
         field_f, unknowns.state(start, v_ref_f), period_f, None, max_beats=max_beats, **beats
     )
     drift = jnp.maximum(guess.volume_drift, final.volume_drift)
-    result = diffrax.RESULTS.where(diffrax.is_successful(guess.result), final.result, guess.result)
+    result = jnp.where(guess.result == SUCCESSFUL, final.result, guess.result)
     beats = guess.beats + final.beats
     newton_steps = root.stats["num_steps"]
     if ts is None:  # the orbit's start only, its derivative the orbit's
@@ -124,7 +125,7 @@ def shoot_periodic(
     return Beats(
         ts, last.observed, last.y0, final.y_end, beats, final.residual,
         jnp.maximum(drift, last.volume_drift),
-        diffrax.RESULTS.where(diffrax.is_successful(result), last.result, result),
+        jnp.where(result == SUCCESSFUL, last.result, result),
         last.num_steps, newton_steps,
     )
 

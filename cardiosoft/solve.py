@@ -8,36 +8,49 @@ Choosing (``notes/diffrax-practice.md``): Tsit5 for the smooth bench; ``preset(.
 model stiff; compare ``sol.stats["num_steps"]`` before deciding. ``atol`` is absolute in SI and
 shared by every state component: pressures (Pa, ~1e4) and volumes (m^3, ~1e-5) differ by nine
 orders of magnitude, so for volumes ``atol`` rather than ``rtol`` usually sets the accuracy.
+
+diffrax (and optimistix, lineax) are imported where a solve is traced, not with this module: a
+command whose programs come from the program store (:mod:`cardiosoft.program_store`) never
+traces one, and spares their import (0.4-0.5 s of a fresh process, issue #41). So the presets
+name their solver and adjoint (:class:`SolverConfig`), and a solve's result leaves a program as
+diffrax's integer code (:func:`result_code`), not as diffrax's enumeration.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 
 from cardiosoft.circulation import inlet_pressure
 from cardiosoft.units import ml, mmHg
+
+if TYPE_CHECKING:
+    import diffrax
 
 __all__ = [
     "ACCURACY_PRESETS",
     "PERIODIC_SCALES",
     "PRESETS",
+    "SUCCESSFUL",
     "TIGHTER",
     "Beats",
     "SolverConfig",
     "describe",
+    "diffrax_objects",
     "in_phase",
     "integrate",
     "periodic_beats",
     "preset",
     "rerun_settings",
     "respond",
+    "result_code",
+    "result_code_of",
+    "result_message",
+    "solver_name",
 ]
 
 
@@ -46,7 +59,9 @@ class SolverConfig(eqx.Module):
 
     **Arguments:**
 
-    - ``solver`` (static): a diffrax solver instance; default ``Tsit5()``.
+    - ``solver`` (static): a diffrax solver instance, or the name of one built when a solve is
+      traced: ``"Tsit5"`` (the default), ``"Kvaerno5"`` (with a Newton root finder at the
+      controller's tolerances), or any other diffrax solver that takes no arguments.
     - ``rtol``, ``atol``: tolerances of the PID controller (atol in SI units of the state).
     - ``pcoeff``, ``icoeff``: PID coefficients; (0, 1) is the plain I controller.
     - ``max_steps`` (static): bound on the number of steps (sizes the checkpoint memory).
@@ -56,11 +71,12 @@ class SolverConfig(eqx.Module):
       For checking derivatives against finite differences: with equal steps the discretisation
       is the same on both sides of the difference, so the two agree to the difference's own
       truncation error.
-    - ``adjoint`` (static): diffrax adjoint; the default checkpointed one for reverse mode,
-      ``diffrax.ForwardMode()`` for ``jax.jvp``/``jacfwd`` (least-squares fitting).
+    - ``adjoint`` (static): diffrax adjoint, an instance or a name as ``solver``; the default
+      ``"RecursiveCheckpointAdjoint"`` for reverse mode, ``"ForwardMode"`` for
+      ``jax.jvp``/``jacfwd`` (least-squares fitting).
     """
 
-    solver: diffrax.AbstractSolver = eqx.field(static=True, default_factory=diffrax.Tsit5)
+    solver: Any = eqx.field(static=True, default="Tsit5")
     rtol: jax.Array = eqx.field(converter=jnp.asarray, default=1e-6)
     atol: jax.Array = eqx.field(converter=jnp.asarray, default=1e-9)
     pcoeff: jax.Array = eqx.field(converter=jnp.asarray, default=0.0)
@@ -68,9 +84,58 @@ class SolverConfig(eqx.Module):
     max_steps: int = eqx.field(static=True, default=16384)
     dt0: float | None = None
     fixed_steps: int | None = eqx.field(static=True, default=None)
-    adjoint: diffrax.AbstractAdjoint = eqx.field(
-        static=True, default_factory=diffrax.RecursiveCheckpointAdjoint
-    )
+    adjoint: Any = eqx.field(static=True, default="RecursiveCheckpointAdjoint")
+
+
+def diffrax_objects(config: SolverConfig) -> tuple:
+    """``config``'s solver and adjoint as diffrax's objects, those given by name built."""
+    import diffrax
+
+    def built(value):
+        if not isinstance(value, str):
+            return value
+        if value == "Kvaerno5":  # the stiff preset's: Newton at the controller's tolerances
+            import optimistix as optx
+
+            newton = diffrax.with_stepsize_controller_tols(optx.Newton)()
+            return diffrax.Kvaerno5(root_finder=newton)
+        return getattr(diffrax, value)()
+
+    return built(config.solver), built(config.adjoint)
+
+
+def solver_name(config: SolverConfig) -> str:
+    """The name of ``config``'s solver (``"Tsit5"``, ``"Kvaerno5"``, ...)."""
+    solver = config.solver
+    return solver if isinstance(solver, str) else type(solver).__name__
+
+
+SUCCESSFUL = 0
+"""diffrax's result code of a solve that succeeded (``RESULTS.successful``)."""
+
+
+def result_code(result) -> jax.Array:
+    """diffrax's result (an item of its ``RESULTS`` enumeration, or already its code) as its
+    integer code: the enumeration's one array leaf."""
+    (code,) = jax.tree_util.tree_leaves(result)
+    return code
+
+
+def result_code_of(name: str) -> int:
+    """The code of diffrax's result ``name`` (``"max_steps_reached"``, ...)."""
+    import diffrax
+
+    return int(result_code(getattr(diffrax.RESULTS, name)))
+
+
+def result_message(code) -> str:
+    """diffrax's message for the result ``code`` (a scalar)."""
+    import diffrax
+
+    successful = diffrax.RESULTS.successful
+    code = jnp.asarray(code, result_code(successful).dtype)
+    item = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(successful), [code])
+    return str(diffrax.RESULTS[item]).strip()
 
 
 PRESETS: dict[str, dict] = {
@@ -98,8 +163,7 @@ TIGHTER = 100.0
 
 def describe(config: SolverConfig) -> str:
     """A configuration in words: solver, rtol, atol."""
-    name = type(config.solver).__name__
-    return f"{name}, rtol {float(config.rtol):.0e}, atol {float(config.atol):.0e}"
+    return f"{solver_name(config)}, rtol {float(config.rtol):.0e}, atol {float(config.atol):.0e}"
 
 
 def rerun_settings(accuracy: str, run: SolverConfig, reference: SolverConfig) -> tuple[str, str]:
@@ -119,9 +183,8 @@ def preset(name: str, stiff: bool = False) -> SolverConfig:
     if name not in PRESETS:
         raise ValueError(f"solver preset {name!r} is not one of {', '.join(PRESETS)}")
     if stiff:
-        solver = diffrax.Kvaerno5(root_finder=diffrax.with_stepsize_controller_tols(optx.Newton)())
-        return SolverConfig(solver, pcoeff=0.3, icoeff=0.4, **PRESETS[name])
-    return SolverConfig(diffrax.Tsit5(), **PRESETS[name])
+        return SolverConfig("Kvaerno5", pcoeff=0.3, icoeff=0.4, **PRESETS[name])
+    return SolverConfig("Tsit5", **PRESETS[name])
 
 
 def integrate(
@@ -155,7 +218,10 @@ def integrate(
 
     **Returns:** the ``diffrax.Solution``; never throws, check ``sol.result``.
     """
+    import diffrax
+
     config = preset("default") if config is None else config
+    solver, adjoint = diffrax_objects(config)
     dt0 = config.dt0
     if config.fixed_steps is None:
         controller = diffrax.PIDController(
@@ -180,7 +246,7 @@ def integrate(
     )
     return diffrax.diffeqsolve(
         diffrax.ODETerm(vector_field),
-        config.solver,
+        solver,
         jnp.asarray(t0, dtype=ftype),
         jnp.asarray(t1, dtype=ftype),
         dt0,
@@ -188,7 +254,7 @@ def integrate(
         args=args,
         saveat=saveat,
         stepsize_controller=controller,
-        adjoint=config.adjoint,
+        adjoint=adjoint,
         max_steps=config.max_steps,
         throw=False,
     )
@@ -253,12 +319,12 @@ def respond(
         gaps = jnp.diff(jnp.concatenate([jnp.zeros(1, ts.dtype), ts]))
         max_step = None if jump_ts is not None else jnp.min(jnp.where(gaps > 0, gaps, jnp.inf))
     p, result, num_steps = _respond(block, inflow, ts, y0, config, jump_ts, max_step)
-    failed = result != diffrax.RESULTS.successful
+    failed = result_code(result) != SUCCESSFUL
     message = "respond: the afterload solve failed; raise max_steps or loosen the tolerances"
     if isinstance(failed, jax.core.Tracer):
         return eqx.error_if(p, failed, message)
     if bool(failed):
-        reason = diffrax.RESULTS[result]
+        reason = result_message(result_code(result))
         raise RuntimeError(f"{message}: {reason} ({int(num_steps)} steps taken)")
     return p
 
@@ -311,8 +377,9 @@ class Beats(eqx.Module):
     mmHg)."""
     volume_drift: jax.Array
     """Largest |total volume - initial total| at any beat's end, relative to the first."""
-    result: diffrax.RESULTS
-    """diffrax's result of the last solve (``successful`` unless a beat failed)."""
+    result: jax.Array
+    """diffrax's result code of the last solve (:data:`SUCCESSFUL` unless a beat failed;
+    :func:`result_message`)."""
     num_steps: jax.Array
     """Solver steps of the last beat."""
     newton_steps: jax.Array
@@ -348,11 +415,11 @@ def _finite_or_failed(states, result):
     # result: diffrax checks the save times with a host callback that raises, which the CLIs
     # resolve to NaN instead so that their compile can be cached (cardiosoft._cli); diffrax then
     # leaves every sample at inf and still reports success.
+    # Returns the result's code (:func:`result_code`), as :class:`Beats` holds it.
     leaves = jax.tree_util.tree_leaves(states)
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in leaves]))
-    return diffrax.RESULTS.where(
-        diffrax.is_successful(result) & ~finite, diffrax.RESULTS.internal_error, result
-    )
+    code = result_code(result)
+    return jnp.where((code == SUCCESSFUL) & ~finite, result_code_of("internal_error"), code)
 
 
 def periodic_beats(
@@ -399,6 +466,8 @@ def periodic_beats(
     stops at its own steady state (the batch runs until the slowest is done). A failed beat
     stops its element and is reported in ``result``; nothing is raised.
     """
+    import diffrax
+
     config = preset("default") if config is None else config
     change = _cycle_residual if change is None else change
     ftype = jnp.result_type(float)

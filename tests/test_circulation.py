@@ -12,6 +12,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 import pytest
 
 from cardiosoft.circulation import (
@@ -25,7 +26,7 @@ from cardiosoft.circulation import (
     Windkessel4,
     inlet_pressure,
 )
-from cardiosoft.solve import PRESETS, integrate, preset, respond
+from cardiosoft.solve import PRESETS, diffrax_objects, integrate, preset, respond
 from cardiosoft.units import RHO_WATER, G, ml, mm, mmHg
 from cardiosoft.valves import Valve
 
@@ -396,7 +397,9 @@ def test_validation_messages(make, words):
 
 def test_presets_and_failure_report():
     assert set(PRESETS) == {"fast", "default", "reference"}
-    assert isinstance(preset("default", stiff=True).solver, diffrax.Kvaerno5)
+    solver, adjoint = diffrax_objects(preset("default", stiff=True))
+    assert isinstance(solver, diffrax.Kvaerno5) and isinstance(solver.root_finder, optx.Newton)
+    assert isinstance(adjoint, diffrax.RecursiveCheckpointAdjoint)
     assert float(preset("fast").rtol) == 1e-4
     # an explicit solver on a very stiff Windkessel (RC = 1e-9 s) runs out of steps
     stiff = Windkessel2(R=1e-3 * R_UNIT, C=1e-6 * C_UNIT)

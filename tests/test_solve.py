@@ -10,7 +10,14 @@ import pytest
 
 from cardiosoft.circulation import Windkessel3
 from cardiosoft.shooting import orbit_beat
-from cardiosoft.solve import SolverConfig, respond
+from cardiosoft.solve import (
+    SUCCESSFUL,
+    SolverConfig,
+    respond,
+    result_code,
+    result_code_of,
+    result_message,
+)
 from cardiosoft.units import mmHg
 
 PERIOD, EJECTION, SV = 0.8, 0.3, 70e-6  # s, s, m^3
@@ -28,6 +35,17 @@ class HalfSine(eqx.Module):
         tau = jnp.mod(t, self.period)
         peak = self.sv * jnp.pi / (2 * self.ejection)
         return jnp.where(tau < self.ejection, peak * jnp.sin(jnp.pi * tau / self.ejection), 0.0)
+
+
+def test_a_result_leaves_a_program_as_diffraxs_own_code():
+    """Beats and batch solutions carry diffrax's result as its integer code, so that a stored
+    program's output is rebuilt without importing diffrax (issue #41): SUCCESSFUL is diffrax's
+    own code, and a code reads back as diffrax's message."""
+    assert int(result_code(diffrax.RESULTS.successful)) == SUCCESSFUL
+    code = result_code_of("max_steps_reached")
+    assert code != SUCCESSFUL
+    expected = str(diffrax.RESULTS[diffrax.RESULTS.max_steps_reached]).strip()
+    assert result_message(code) == expected and "maximum number of solver steps" in expected
 
 
 @pytest.mark.parametrize("with_kinks", [False, True])
@@ -57,9 +75,9 @@ def test_the_step_cap_can_be_lifted_and_then_pulses_are_lost():
 
 
 GUARD = """
-import jax, jax.numpy as jnp, diffrax
+import jax, jax.numpy as jnp
 jax.config.update("jax_enable_x64", True)
-from cardiosoft.solve import periodic_beats
+from cardiosoft.solve import SUCCESSFUL, periodic_beats
 
 field = lambda t, y, args: {"volume": -y["volume"] + 1e-6 * jnp.sin(2 * jnp.pi * t)}
 
@@ -69,7 +87,7 @@ def run(ts):
         field, {"volume": jnp.array(1e-6)}, 1.0, ts, jump_ts=jnp.array([0.5]),
         total_volume=lambda y: y["volume"], max_beats=3, tol=0.0,
     )
-    return diffrax.is_successful(out.result), jnp.all(jnp.isfinite(out.observed["volume"]))
+    return out.result == SUCCESSFUL, jnp.all(jnp.isfinite(out.observed["volume"]))
 
 print(*(bool(v) for v in run(jnp.array([0.0, 0.5, 1.0]))))
 print(*(bool(v) for v in run(jnp.array([0.0, 0.5, 0.4, 1.0]))))  # not increasing

@@ -28,7 +28,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from cardiosoft._validate import check_positive, check_range
 from cardiosoft.units import mm
@@ -158,6 +157,8 @@ class ApexMotion(NamedTuple):
 
 
 def _solve_tf(shell: Shell, omega, shortening):
+    import optimistix as optx  # where it is traced: a stored program spares the import (#41)
+
     target = (1.0 - shortening) * cable_length(shell, omega)
 
     def residual(t, _):

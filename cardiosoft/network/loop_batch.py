@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -45,7 +44,7 @@ from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers,
 from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.shooting import shoot_periodic
-from cardiosoft.solve import SolverConfig, periodic_beats, preset
+from cardiosoft.solve import SolverConfig, periodic_beats, preset, result_code_of
 
 __all__ = [
     "LOOP_SAMPLES",
@@ -363,7 +362,7 @@ def solve_loop(
         )
 
     solved = solve(batch, config)
-    ran_out = np.flatnonzero(np.asarray(solved[2].result == diffrax.RESULTS.max_steps_reached))
+    ran_out = np.flatnonzero(np.asarray(solved[2].result == result_code_of("max_steps_reached")))
     if chosen is None and ran_out.size:
         # the members (or draws) the explicit solver ran out of steps on are stiff: solve them
         # again, implicitly
@@ -378,7 +377,7 @@ def stiff_loop_config(scene: LoopScene) -> SolverConfig:
     """The scene's accuracy preset with the implicit Kvaerno5, in forward mode: what
     :func:`solve_loop` takes for the members the explicit :func:`loop_config` runs out of steps
     on (near the design box's corners at 120-180 bpm, a pump's valves make the loop stiff)."""
-    return dataclasses.replace(preset(scene.accuracy, stiff=True), adjoint=diffrax.ForwardMode())
+    return dataclasses.replace(preset(scene.accuracy, stiff=True), adjoint="ForwardMode")
 
 
 def loop_config(scene: LoopScene) -> SolverConfig:
@@ -388,4 +387,4 @@ def loop_config(scene: LoopScene) -> SolverConfig:
     Tsit5, not the stiff preset that the pump scenes' valves get: on ``heart`` at the default
     preset, 178 steps a beat (31 rejected) against Kvaerno5's 78 (8), but 0.24 s against 0.76 s
     for 30 beats and a third of the compile time (measured 2026-12, two busy cores)."""
-    return dataclasses.replace(preset(scene.accuracy), adjoint=diffrax.ForwardMode())
+    return dataclasses.replace(preset(scene.accuracy), adjoint="ForwardMode")

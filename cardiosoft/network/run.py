@@ -12,7 +12,6 @@ import dataclasses
 import functools
 from dataclasses import dataclass
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -20,7 +19,15 @@ import numpy as np
 
 from cardiosoft.network.svzerod import Model
 from cardiosoft.program_store import stored_call
-from cardiosoft.solve import PRESETS, SolverConfig, integrate, periodic_beats, preset
+from cardiosoft.solve import (
+    PRESETS,
+    SUCCESSFUL,
+    SolverConfig,
+    integrate,
+    periodic_beats,
+    preset,
+    result_code,
+)
 
 
 @dataclass(frozen=True)
@@ -226,14 +233,14 @@ def simulate(
                 x_first, beats, residual, result = each_stored(_steady_beats, 0, 0, *[None] * 4)(
                     net, x0, float(t_all[-1]), jumps, config, max_beats or STEADY_MAX_BEATS
                 )
-                started = bool(jnp.all(result == diffrax.RESULTS.successful))
+                started = bool(jnp.all(result_code(result) == SUCCESSFUL))
                 residual = float(jnp.max(residual))
                 periodic = dict(steady=started and residual <= 1.0, beats=int(jnp.max(beats)))
                 periodic["residual"] = residual
             zs, internal, converged, result, steps, x_end = each_stored(_run, 0, 0, *[None] * 5)(
                 net, x_first, float(t_all[-1]), ts, jumps, config, sim.derivative
             )
-            solved = started and bool(jnp.all(result == diffrax.RESULTS.successful))
+            solved = started and bool(jnp.all(result_code(result) == SUCCESSFUL))
             if solved:
                 break
         steps = int(jnp.max(steps))
@@ -299,7 +306,7 @@ def _until_caps_settle(model, x_end, run, dt, config, beat_steps):
         z1, i1, c1, result, s1, x_end = _run(
             net, x_end, float(beat[-1]), beat, jumps, config, sim.derivative
         )
-        if not bool(result == diffrax.RESULTS.successful):
+        if not bool(result_code(result) == SUCCESSFUL):
             record = dict(steady=None, beats=sim.cycles + extra + 1, residual=None)
             return zs, internal, converged, ts, record, taken
         kept = slice(None) if sim.output_all_cycles else slice(-(2 * steps + 1), None)
@@ -376,4 +383,4 @@ def _run(net, x0, t_end, ts, jumps, config, derivative: bool):
     (:func:`_read_out`)."""
     sol = integrate(_field, x0, 0.0, t_end, args=net, ts=ts, jump_ts=jumps, config=config)
     steps = sol.stats["num_accepted_steps"]
-    return (*_read_out(net, ts, sol.ys, derivative), sol.result, steps, sol.ys[-1])
+    return (*_read_out(net, ts, sol.ys, derivative), result_code(sol.result), steps, sol.ys[-1])

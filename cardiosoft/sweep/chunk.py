@@ -152,10 +152,9 @@ def solve_chunk(task: Task) -> dict:
     if bool(jax.config.jax_enable_x64) != task.x64:
         jax.config.update("jax_enable_x64", task.x64)
     try:
-        import diffrax
-
         from cardiosoft.metrics import field_at
         from cardiosoft.scene_tools import solve_beats, tools
+        from cardiosoft.solve import result_code_of
 
         kind = tools(task.scene)
         n = task.valid
@@ -178,7 +177,7 @@ def solve_chunk(task: Task) -> dict:
             result[name] = np.asarray(field_at(out.metrics, path))[:n] / scale
         finite = np.all([np.isfinite(v) for v in result.values()], axis=0)
         succeeded = np.asarray(out.succeeded)[:n]
-        max_steps = np.asarray(out.result == diffrax.RESULTS.max_steps_reached)[:n]
+        max_steps = np.asarray(out.result == result_code_of("max_steps_reached"))[:n]
         steady = np.asarray(out.steady)[:n]
         status = np.select(
             [~succeeded & max_steps, ~succeeded, ~finite, ~steady],

@@ -97,10 +97,11 @@ class Plan:
     def attrs(self) -> dict:
         """The Dataset's attributes."""
         from cardiosoft.scene_tools import tools
+        from cardiosoft.solve import solver_name
 
         scene = self.scene
         config = tools(scene).preset(scene)
-        solver = type(config.solver).__name__
+        solver = solver_name(config)
         return {
             "title": f"cardiosoft design-space sweep of scene {scene.name}",
             "scene": scene.name,
