@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax
 import numpy as np
 
 from cardiosoft.batch import BeatSolution, StaticSolution
@@ -274,6 +275,8 @@ def member_results(
     :func:`flags`.
     """
     domain = Domain() if domain is None else domain
+    # read from the device once: indexing a JAX array member by member is a small program each
+    dynamic, static = jax.device_get((dynamic, static))
     members = (dynamic if dynamic is not None else static).members
     heads = np.asarray(members["afterload"])
     out = []

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from cardiosoft import program_store
-from cardiosoft.program_store import prune, stored_call, use_program_store
+from cardiosoft.program_store import prune, stored_call, stored_value, use_program_store
 
 ROOT = Path(__file__).resolve().parent.parent
 TRACED = []  # one entry each time the function below is traced
@@ -115,6 +115,47 @@ def test_pruning_deletes_the_least_recently_used_entries(store, monkeypatch):
     stored_call(_beat_like, NUMBERS, 5.0)
     (left,) = store.glob("*.jaxprogram")
     assert left not in written, "the write did not prune the store"
+
+
+def _value(store, numbers, calls):
+    """A value kept in the store for ``numbers`` and a static part, counting its computations."""
+
+    def compute():
+        calls.append(1)
+        return {"sum": float(jnp.sum(numbers))}
+
+    return stored_value("a sum", (numbers, "its wiring"), compute, lambda v: v, lambda v: v)
+
+
+def test_a_stored_value_is_computed_once_per_input_and_never_trusted_damaged(store):
+    calls = []
+    assert _value(store, jnp.arange(3.0), calls) == {"sum": 3.0} and calls == [1]
+    use_program_store(store)  # a new process
+    assert _value(store, jnp.arange(3.0), calls) == {"sum": 3.0} and calls == [1]
+    assert _value(store, jnp.arange(3.0) + 1, calls) == {"sum": 6.0} and calls == [1, 1]
+    for path in store.glob("*.jaxprogram"):  # one byte of each value flipped
+        raw = bytearray(path.read_bytes())
+        raw[-2] ^= 0xFF
+        path.write_bytes(bytes(raw))
+    use_program_store(store)
+    assert _value(store, jnp.arange(3.0), calls) == {"sum": 3.0} and calls == [1, 1, 1]
+
+
+def test_an_svzerod_models_solving_order_is_read_back_not_found_again(store, monkeypatch):
+    """Reading a model orders its nodes (cardiosoft.network.ordering); a later process reading
+    the same model takes the stored order, equal to the one found."""
+    from cardiosoft.network import ordering, read
+
+    model = ROOT / "tests" / "data" / "svzerod" / "closedLoopHeart_singleVessel.json"
+    found = read(model).network.order
+    assert found is not None and len(list(store.glob("*.jaxprogram"))) == 1
+    use_program_store(store)
+
+    def not_again(*args, **kwargs):
+        raise AssertionError("the solving order was found again")
+
+    monkeypatch.setattr(ordering, "order_nodes", not_again)
+    assert read(model).network.order == found
 
 
 @eqx.filter_jit

@@ -52,7 +52,7 @@ from cardiosoft.network.heart_blocks import (
 )
 from cardiosoft.network.loop_blocks import LawValve
 from cardiosoft.network.network import Network, reduce_index
-from cardiosoft.network.ordering import order_nodes
+from cardiosoft.network.ordering import stored_order
 from cardiosoft.network.pump_in_model import PumpPlacement, soft_pump
 from cardiosoft.network.simulation_parameters import Simulation, UnsupportedModel, read_simulation
 from cardiosoft.valves import ArctanValve, Valve
@@ -392,7 +392,7 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
     model = Model(network, simulation, initial, name or "model")
     try:
         network = reduce_index(network, model.initial_states())
-        network = dataclasses.replace(network, order=order_nodes(network, model.initial_states()))
+        network = dataclasses.replace(network, order=stored_order(network, model.initial_states()))
     except ValueError as error:
         raise UnsupportedModel(f"{model.name}: {error}") from None
     return dataclasses.replace(model, network=network)
