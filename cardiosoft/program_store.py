@@ -341,12 +341,12 @@ def _lowering(fn, keywords, key, static, tree, leaves) -> StoredLowering | None:
 
 
 def stored_value(name: str, material, compute, encode, decode):
-    """``decode(compute())``'s value for ``material`` (arrays and static values, whose bytes
-    and ``repr`` key it), kept in this process's store beside its programs: what a command
+    """``compute()``, the value of ``material`` (arrays and static values, whose bytes and
+    ``repr`` key it), kept in this process's store beside its programs: what a command
     computes eagerly before it solves, the same every run of one input (the solving order of
-    an svZeroDSolver model's nodes). ``encode`` makes the value JSON-ready, ``decode`` takes
-    it back; an entry that is missing, stale or corrupt, or does not decode, is computed
-    anew. Without a store, ``compute()``."""
+    an svZeroDSolver model's nodes). ``encode`` makes the value JSON-ready and ``decode``
+    takes it back (``decode(encode(v))`` must equal ``v``); an entry that is missing, stale or
+    corrupt, or does not decode, is computed anew. Without a store, ``compute()``."""
     if _state["folder"] is None:
         return compute()
     import equinox as eqx
