@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from cardiosoft.circulation import inlet_pressure
 from cardiosoft.units import ml, mmHg
@@ -45,6 +46,7 @@ __all__ = [
     "integrate",
     "periodic_beats",
     "preset",
+    "ran_out_of_steps",
     "rerun_settings",
     "respond",
     "result_code",
@@ -91,7 +93,7 @@ def diffrax_objects(config: SolverConfig) -> tuple:
     """``config``'s solver and adjoint as diffrax's objects, those given by name built."""
     import diffrax
 
-    def built(value):
+    def built(field, value, kind):
         if not isinstance(value, str):
             return value
         if value == "Kvaerno5":  # the stiff preset's: Newton at the controller's tolerances
@@ -99,9 +101,18 @@ def diffrax_objects(config: SolverConfig) -> tuple:
 
             newton = diffrax.with_stepsize_controller_tols(optx.Newton)()
             return diffrax.Kvaerno5(root_finder=newton)
-        return getattr(diffrax, value)()
+        found = getattr(diffrax, value, None)
+        if not (isinstance(found, type) and issubclass(found, kind)):
+            raise ValueError(
+                f"SolverConfig {field} = {value!r}: not the name of a diffrax {kind.__name__} "
+                "(e.g. 'Tsit5', 'Kvaerno5'; adjoints 'RecursiveCheckpointAdjoint', 'ForwardMode')"
+            )
+        return found()
 
-    return built(config.solver), built(config.adjoint)
+    return (
+        built("solver", config.solver, diffrax.AbstractSolver),
+        built("adjoint", config.adjoint, diffrax.AbstractAdjoint),
+    )
 
 
 def solver_name(config: SolverConfig) -> str:
@@ -126,6 +137,15 @@ def result_code_of(name: str) -> int:
     import diffrax
 
     return int(result_code(getattr(diffrax.RESULTS, name)))
+
+
+def ran_out_of_steps(codes) -> np.ndarray:
+    """Per member of result ``codes`` (concrete): the solver reached ``max_steps``. diffrax is
+    imported only when some member did not succeed."""
+    codes = np.asarray(codes)
+    if np.all(codes == SUCCESSFUL):
+        return np.zeros(codes.shape, dtype=bool)
+    return codes == result_code_of("max_steps_reached")
 
 
 def result_message(code) -> str:

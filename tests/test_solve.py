@@ -1,6 +1,8 @@
 """``cardiosoft.solve``: what the integrator does with forcing it cannot see coming, and the
 implicit derivative of a periodic orbit against an analytic one."""
 
+import re
+
 import diffrax
 import equinox as eqx
 import jax
@@ -13,6 +15,8 @@ from cardiosoft.shooting import orbit_beat
 from cardiosoft.solve import (
     SUCCESSFUL,
     SolverConfig,
+    diffrax_objects,
+    ran_out_of_steps,
     respond,
     result_code,
     result_code_of,
@@ -46,6 +50,25 @@ def test_a_result_leaves_a_program_as_diffraxs_own_code():
     assert code != SUCCESSFUL
     expected = str(diffrax.RESULTS[diffrax.RESULTS.max_steps_reached]).strip()
     assert result_message(code) == expected and "maximum number of solver steps" in expected
+
+
+def test_ran_out_of_steps_reads_the_codes():
+    codes = np.array([SUCCESSFUL, result_code_of("max_steps_reached"), SUCCESSFUL])
+    assert ran_out_of_steps(codes).tolist() == [False, True, False]
+    assert ran_out_of_steps(np.full(2, SUCCESSFUL)).tolist() == [False, False]
+
+
+@pytest.mark.parametrize(
+    ("config", "named"),
+    [
+        (SolverConfig(solver="tsit5"), "SolverConfig solver = 'tsit5'"),
+        (SolverConfig(solver="ForwardMode"), "SolverConfig solver = 'ForwardMode'"),
+        (SolverConfig(adjoint="forward"), "SolverConfig adjoint = 'forward'"),
+    ],
+)
+def test_a_solver_or_adjoint_name_diffrax_lacks_is_refused_by_name(config, named):
+    with pytest.raises(ValueError, match=re.escape(named)):
+        diffrax_objects(config)
 
 
 @pytest.mark.parametrize("with_kinks", [False, True])

@@ -44,7 +44,7 @@ from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers,
 from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.shooting import shoot_periodic
-from cardiosoft.solve import SolverConfig, periodic_beats, preset, result_code_of
+from cardiosoft.solve import SolverConfig, periodic_beats, preset, ran_out_of_steps
 
 __all__ = [
     "LOOP_SAMPLES",
@@ -362,7 +362,7 @@ def solve_loop(
         )
 
     solved = solve(batch, config)
-    ran_out = np.flatnonzero(np.asarray(solved[2].result == result_code_of("max_steps_reached")))
+    ran_out = np.flatnonzero(ran_out_of_steps(solved[2].result))
     if chosen is None and ran_out.size:
         # the members (or draws) the explicit solver ran out of steps on are stiff: solve them
         # again, implicitly

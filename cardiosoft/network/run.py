@@ -233,14 +233,14 @@ def simulate(
                 x_first, beats, residual, result = each_stored(_steady_beats, 0, 0, *[None] * 4)(
                     net, x0, float(t_all[-1]), jumps, config, max_beats or STEADY_MAX_BEATS
                 )
-                started = bool(jnp.all(result_code(result) == SUCCESSFUL))
+                started = bool(jnp.all(result == SUCCESSFUL))
                 residual = float(jnp.max(residual))
                 periodic = dict(steady=started and residual <= 1.0, beats=int(jnp.max(beats)))
                 periodic["residual"] = residual
             zs, internal, converged, result, steps, x_end = each_stored(_run, 0, 0, *[None] * 5)(
                 net, x_first, float(t_all[-1]), ts, jumps, config, sim.derivative
             )
-            solved = started and bool(jnp.all(result_code(result) == SUCCESSFUL))
+            solved = started and bool(jnp.all(result == SUCCESSFUL))
             if solved:
                 break
         steps = int(jnp.max(steps))
@@ -306,7 +306,7 @@ def _until_caps_settle(model, x_end, run, dt, config, beat_steps):
         z1, i1, c1, result, s1, x_end = _run(
             net, x_end, float(beat[-1]), beat, jumps, config, sim.derivative
         )
-        if not bool(result_code(result) == SUCCESSFUL):
+        if not bool(result == SUCCESSFUL):
             record = dict(steady=None, beats=sim.cycles + extra + 1, residual=None)
             return zs, internal, converged, ts, record, taken
         kept = slice(None) if sim.output_all_cycles else slice(-(2 * steps + 1), None)

@@ -154,7 +154,7 @@ def solve_chunk(task: Task) -> dict:
     try:
         from cardiosoft.metrics import field_at
         from cardiosoft.scene_tools import solve_beats, tools
-        from cardiosoft.solve import result_code_of
+        from cardiosoft.solve import ran_out_of_steps
 
         kind = tools(task.scene)
         n = task.valid
@@ -177,7 +177,7 @@ def solve_chunk(task: Task) -> dict:
             result[name] = np.asarray(field_at(out.metrics, path))[:n] / scale
         finite = np.all([np.isfinite(v) for v in result.values()], axis=0)
         succeeded = np.asarray(out.succeeded)[:n]
-        max_steps = np.asarray(out.result == result_code_of("max_steps_reached"))[:n]
+        max_steps = ran_out_of_steps(out.result)[:n]
         steady = np.asarray(out.steady)[:n]
         status = np.select(
             [~succeeded & max_steps, ~succeeded, ~finite, ~steady],
