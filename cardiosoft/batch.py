@@ -22,7 +22,9 @@ shared by all members; it may be a JAX array, so ``scene.replace(tube_length=L)`
 **Beats.** :func:`solve_beats` builds each member's :class:`~cardiosoft.circuit.PumpCircuit`
 and integrates beat after beat from rest until the cycle-to-cycle change of the state is below
 the scene's ``steady_tol`` (or exactly ``beats`` beats), every member at its own pace, in one
-jitted, ``vmap``-ed call sharded over ``jax.devices()``. Numbers are array leaves: a new design,
+jitted, ``vmap``-ed call sharded over ``jax.devices()``; a large batch runs as a queue on fewer
+lanes, so that a member slow to settle does not hold the others
+(:func:`cardiosoft.solve.periodic_beats_batch`). Numbers are array leaves: a new design,
 afterload, rate or tolerance does not recompile; a new batch size, effect or save mode does.
 
 **Ensembles.** A ``pump`` whose fitted array leaves carry one leading axis of S draws (a
@@ -100,7 +102,7 @@ from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
 from cardiosoft.shooting import orbit_beat, shoot_periodic
-from cardiosoft.solve import SolverConfig, periodic_beats, preset
+from cardiosoft.solve import BeatProblem, SolverConfig, periodic_beats_batch, preset
 from cardiosoft.static import column_stiffness, static_strokes
 from cardiosoft.units import RHO_WATER, G, bpm, mmHg
 
@@ -295,7 +297,7 @@ def _metrics(circuit: PumpCircuit, ts, ys):
 def _solve(
     structure, numbers, pump, members, max_beats: int, tol, config, save, steady, energy, engine
 ):
-    def one(member):
+    def build(member):
         values = {k: v for k, v in member.items() if k not in ("afterload", "start", "pump")}
         scene = dataclasses.replace(structure, **(numbers | values))
         # an ensemble's member carries its own draw of the pump's arrays (pump: the rest)
@@ -303,17 +305,27 @@ def _solve(
         circuit = scene_circuit(scene, own, member["afterload"], energy=energy, engine=engine)
         ts = None if save == "state" else _save_times(circuit.actuation)
         observe = None if save == "traces" else (lambda ts, ys: _metrics(circuit, ts, ys)[1])
-        common = dict(
-            jump_ts=circuit.actuation.kink_times(1),
-            total_volume=circuit.total_volume,
-            max_beats=max_beats,
-            tol=tol,
-            config=config,
-            observe=observe,
+        return circuit, ts, observe
+
+    def problem(member) -> BeatProblem:
+        circuit, ts, observe = build(member)
+        return BeatProblem(
+            circuit, circuit.init(), circuit.actuation.period, ts,
+            circuit.actuation.kink_times(1), circuit.total_volume, observe,
         )
-        period = circuit.actuation.period
+
+    def report(member, out):
+        if save != "traces":
+            return out.observed, None  # the metrics, or None without a sampled beat
+        circuit, ts, _ = build(member)
+        signals, metrics = _metrics(circuit, ts, out.observed)
+        return metrics, {"time": ts, **_flat_states(out.observed), **signals}
+
+    def orbit_or_shooting(member):
+        p = problem(member)
+        common = dict(total_volume=p.total_volume, config=config, observe=p.observe)
         if steady == "orbit":
-            init = circuit.init()
+            init = p.y0
             # a start that is not finite (a failed member's) begins at rest instead: its beat
             # is then far from periodic, and the member reported not steady
             leaves = jax.tree_util.tree_leaves(member["start"])
@@ -322,25 +334,22 @@ def _solve(
                 lambda a, b: jnp.where(finite, a, b), member["start"], init
             )
             out = orbit_beat(
-                circuit, start, period, ts, jump_ts=common["jump_ts"],
-                total_volume=circuit.total_volume, v_ref=circuit.total_volume(init),
-                closed=circuit.preload is None, config=config, observe=observe,
+                p.field, start, p.period, p.ts, jump_ts=p.jump_ts,
+                v_ref=p.total_volume(init), closed=p.field.preload is None, **common,
             )
-        elif steady == "shooting":
+        else:  # shooting
             out = shoot_periodic(
-                circuit, circuit.init(), period, ts, closed=circuit.preload is None,
-                guess_beats=min(GUESS_BEATS, max_beats), **common,
+                p.field, p.y0, p.period, p.ts, closed=p.field.preload is None,
+                guess_beats=min(GUESS_BEATS, max_beats), jump_ts=p.jump_ts,
+                max_beats=max_beats, tol=tol, **common,
             )
-        else:
-            out = periodic_beats(circuit, circuit.init(), period, ts, **common)
-        if save == "traces":
-            signals, metrics = _metrics(circuit, ts, out.observed)
-            traces = {"time": ts, **_flat_states(out.observed), **signals}
-        else:  # the metrics, or None without a sampled beat
-            metrics, traces = out.observed, None
-        return metrics, traces, out
+        return out
 
-    metrics, traces, out = jax.vmap(one)(members)
+    if steady == "beats":  # every member at its own pace (solve.periodic_beats_batch)
+        out = periodic_beats_batch(problem, members, max_beats=max_beats, tol=tol, config=config)
+    else:
+        out = jax.vmap(orbit_or_shooting)(members)
+    metrics, traces = jax.vmap(report)(members, out)
     return metrics, traces, out
 
 

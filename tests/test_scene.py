@@ -482,14 +482,14 @@ def test_calibrated_viscoelasticity_is_not_negligible(effect_runs):
 @pytest.fixture(scope="module")
 def static_run():
     calls = []
-    original = batch.periodic_beats
+    original = batch.periodic_beats_batch
 
     def spy(*args, **kwargs):
         calls.append(1)
         return original(*args, **kwargs)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(batch, "periodic_beats", spy)
+        mp.setattr(batch, "periodic_beats_batch", spy)
         result = run("bench-static")
     return result, calls
 

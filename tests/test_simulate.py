@@ -393,8 +393,8 @@ def test_every_member_fails_with_a_tiny_step_budget(monkeypatch):
 
 def test_new_parameter_values_do_not_recompile(bench, monkeypatch):
     """Afterloads, bpm, Omega, C and the tolerances of a preset are data, not structure."""
-    traces = {"periodic_beats": 0, "quasi_static_stroke": 0}
-    for module, name in ((batch, "periodic_beats"), (static, "quasi_static_stroke")):
+    traces = {"periodic_beats_batch": 0, "quasi_static_stroke": 0}
+    for module, name in ((batch, "periodic_beats_batch"), (static, "quasi_static_stroke")):
         original = getattr(module, name)
 
         def spy(*args, _name=name, _original=original, **kwargs):

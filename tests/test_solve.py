@@ -22,6 +22,7 @@ from cardiosoft.solve import (
     result_code_of,
     result_message,
 )
+from cardiosoft.units import ml as ml_si
 from cardiosoft.units import mmHg
 
 PERIOD, EJECTION, SV = 0.8, 0.3, 70e-6  # s, s, m^3
@@ -190,3 +191,42 @@ def test_orbit_beat_without_an_isolated_orbit_has_nan_derivatives_not_wrong_ones
     values, tangent = jax.jvp(observed, (jnp.asarray(2e-6),), (jnp.asarray(1.0),))
     assert bool(jnp.all(jnp.isfinite(values)))
     assert bool(jnp.all(jnp.isnan(tangent)))
+
+
+def test_a_queued_batch_gives_each_member_the_beats_it_gets_alone():
+    """``periodic_beats_batch`` on a batch larger than its lanes (40 members on
+    ``queue_lanes(40)`` lanes): each member's beat count, residual and last beat are those of
+    ``periodic_beats`` on that member alone (the side-by-side batch, a second implementation),
+    and its beat count the linear relaxation's own. Rates k from 0.02 to 4 per beat: some
+    members settle in 4 beats, the slowest never within ``max_beats`` (reported so)."""
+    from cardiosoft.solve import BeatProblem, periodic_beats, periodic_beats_batch, queue_lanes
+
+    a, tol, max_beats = 1e-6, 1e-4, 80  # m^3 (1 ml), ml (the change's unit), beats
+    ks = jnp.geomspace(4.0, 0.02, 40)[jnp.array([*range(0, 40, 2), *range(1, 40, 2)])]
+    ts = jnp.linspace(0.0, 1.0, 5)
+
+    def problem(k):
+        def field(t, y, args):
+            return {"volume": -k * y["volume"] + a * jnp.sin(2 * jnp.pi * t)}
+
+        return BeatProblem(field, {"volume": jnp.zeros(())}, 1.0, ts, None, None)
+
+    settings = dict(max_beats=max_beats, tol=tol)
+    queued = jax.jit(lambda ks: periodic_beats_batch(problem, ks, **settings))(ks)
+    alone = jax.jit(jax.vmap(lambda k: periodic_beats(*problem(k)[:4], jump_ts=None,
+                                                       total_volume=None, **settings)))(ks)
+    assert queue_lanes(40) < 40
+    np.testing.assert_array_equal(queued.beats, alone.beats)
+    # the same steps of the same solver; round-off apart (the lanes' vector width differs)
+    np.testing.assert_allclose(queued.observed["volume"], alone.observed["volume"], rtol=1e-12)
+    np.testing.assert_allclose(queued.residual, alone.residual, rtol=1e-6)
+    # analytically, beat n changes V by |V*(0)| e^{-k (n-1)} (1 - e^{-k}) from V(0) = 0, and
+    # the loop stops after the first beat whose predecessor changed V by at most tol
+    w = 2 * np.pi
+    start = np.abs(a * w / (np.asarray(ks) ** 2 + w**2)) / ml_si
+    for k, s, beats in zip(np.asarray(ks), start, np.asarray(queued.beats), strict=True):
+        changes = s * np.exp(-k * np.arange(max_beats)) * (1 - np.exp(-k))
+        settled = np.flatnonzero(changes <= tol)
+        expected = max_beats if not settled.size else min(max(settled[0] + 2, 2), max_beats)
+        assert abs(int(beats) - expected) <= 1, (k, beats, expected)  # the threshold's round-off
+    assert int(queued.beats.min()) == 4 and int(queued.beats.max()) == max_beats

@@ -44,7 +44,13 @@ from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers,
 from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.shooting import shoot_periodic
-from cardiosoft.solve import SolverConfig, periodic_beats, preset, ran_out_of_steps
+from cardiosoft.solve import (
+    BeatProblem,
+    SolverConfig,
+    periodic_beats_batch,
+    preset,
+    ran_out_of_steps,
+)
 
 __all__ = [
     "LOOP_SAMPLES",
@@ -197,46 +203,46 @@ def _solve(
     newton,
     engine,
 ):
-    def one(member):
+    def build(member):
         # an ensemble's member carries its own draw of the pump's arrays (pump: the rest)
         values = {k: v for k, v in member.items() if k != "pump"}
         own = pump if "pump" not in member else eqx.combine(member["pump"], pump)
         loop = loop_circuit(structure.with_numbers(numbers | values), own, engine)
-        ts = None if save == "state" else _save_times(loop)
+        return loop, None if save == "state" else _save_times(loop)
+
+    def problem(member) -> BeatProblem:
+        loop, ts = build(member)
 
         def observe(ts, ys):
             signals = jax.vmap(loop.signals)(ts, ys)
             return loop_metrics(loop, ts, signals)
 
-        common = dict(
-            jump_ts=loop.kink_times(),
-            total_volume=loop.total_volume,
-            max_beats=max_beats,
-            tol=tol,
-            config=config,
-            observe=None if save == "traces" else observe,
+        return BeatProblem(
+            loop, loop.init(), loop.period, ts, loop.kink_times(), loop.total_volume,
+            None if save == "traces" else observe,
         )
-        if steady == "shooting":
-            out = shoot_periodic(
-                loop,
-                loop.init(),
-                loop.period,
-                ts,
-                closed=True,
-                guess_beats=min(guess, max_beats),
-                max_newton=newton,
-                **common,
-            )
-        else:
-            out = periodic_beats(loop, loop.init(), loop.period, ts, **common)
-        if save == "traces":
-            signals = jax.vmap(loop.signals)(ts, out.observed)
-            metrics, traces = loop_metrics(loop, ts, signals), {"time": ts, **signals}
-        else:
-            metrics, traces = out.observed, None
-        return metrics, traces, out
 
-    return jax.vmap(one)(members)
+    def report(member, out):
+        if save != "traces":
+            return out.observed, None  # the metrics, or None without a sampled beat
+        loop, ts = build(member)
+        signals = jax.vmap(loop.signals)(ts, out.observed)
+        return loop_metrics(loop, ts, signals), {"time": ts, **signals}
+
+    def shoot(member):
+        p = problem(member)
+        return shoot_periodic(
+            p.field, p.y0, p.period, p.ts, jump_ts=p.jump_ts, total_volume=p.total_volume,
+            closed=True, guess_beats=min(guess, max_beats), max_beats=max_beats, tol=tol,
+            config=config, observe=p.observe, max_newton=newton,
+        )
+
+    if steady == "shooting":
+        out = jax.vmap(shoot)(members)
+    else:  # every member at its own pace (solve.periodic_beats_batch)
+        out = periodic_beats_batch(problem, members, max_beats=max_beats, tol=tol, config=config)
+    metrics, traces = jax.vmap(report)(members, out)
+    return metrics, traces, out
 
 
 def _split(scene: LoopScene):
