@@ -598,17 +598,36 @@ def periodic_beats_batch(
     next beat, and a lane whose member is steady, failed or out of beats stores it and takes
     the next member waiting. One compiled loop; a lane left without a member integrates the
     last member from its start again (a beat of ordinary cost) and keeps nothing of it. With
-    ``tol = 0`` (a number: every member runs ``max_beats``), or with more than one device,
-    the members run side by side.
+    ``tol = 0`` (a number: every member runs ``max_beats``) the members run side by side. A
+    batch sharded over several devices (:func:`cardiosoft.beat_solution.shard`, the sweeps')
+    runs a queue on each device.
     """
     loop = _BeatLoop(max_beats, tol, config, change)
     n = jax.tree_util.tree_leaves(members)[0].shape[0]
-    lanes = queue_lanes(n)
+    devices = jax.devices()
     fixed = isinstance(tol, int | float) and tol == 0  # every member runs max_beats
-    # a batch sharded over several devices (the sweeps') stays side by side: one queue would
-    # gather every lane onto one device
-    if lanes >= n or fixed or jax.device_count() > 1:
+    if fixed or queue_lanes(n // len(devices)) >= n // len(devices):
         return jax.vmap(lambda m: _run_one(loop, problem(m)))(members)
+    if len(devices) == 1:
+        return _queue(loop, problem, members)
+    if n % len(devices):  # not sharded (beat_solution.shard): one queue on one device
+        return _queue(loop, problem, members)
+    # a batch sharded over several devices (the sweeps'): a queue on each device
+    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+    spec = jax.sharding.PartitionSpec("batch")
+    # check_vma off: the queue's lane bookkeeping starts the same on every device (not varying
+    # over the batch axis) and becomes the device's own in the loop, which the check refuses
+    return jax.shard_map(
+        partial(_queue, loop, problem), mesh=mesh, in_specs=spec, out_specs=spec,
+        check_vma=False,
+    )(members)
+
+
+def _queue(loop: _BeatLoop, problem, members) -> Beats:
+    """The members on :func:`queue_lanes` lanes, each lane taking the next member waiting when
+    its own is done (:func:`periodic_beats_batch`)."""
+    n = jax.tree_util.tree_leaves(members)[0].shape[0]
+    lanes = queue_lanes(n)
 
     def take(tree, index):
         return jax.tree_util.tree_map(lambda a: a[jnp.minimum(index, n - 1)], tree)

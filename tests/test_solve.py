@@ -230,3 +230,58 @@ def test_a_queued_batch_gives_each_member_the_beats_it_gets_alone():
         expected = max_beats if not settled.size else min(max(settled[0] + 2, 2), max_beats)
         assert abs(int(beats) - expected) <= 1, (k, beats, expected)  # the threshold's round-off
     assert int(queued.beats.min()) == 4 and int(queued.beats.max()) == max_beats
+
+
+SHARDED_QUEUE = """
+import json, jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_x64", True)
+from cardiosoft.beat_solution import shard
+from cardiosoft.solve import BeatProblem, periodic_beats_batch
+
+assert jax.device_count() == 2
+ks = shard(jnp.geomspace(4.0, 0.02, 80))
+
+def problem(k):
+    def field(t, y, args):
+        return {"volume": -k * y["volume"] + 1e-6 * jnp.sin(2 * jnp.pi * t)}
+    return BeatProblem(field, {"volume": jnp.zeros(())}, 1.0, jnp.linspace(0, 1, 5), None, None)
+
+out = jax.jit(lambda ks: periodic_beats_batch(problem, ks, max_beats=80, tol=1e-4))(ks)
+print(json.dumps({"beats": np.asarray(out.beats).tolist(),
+                  "volume": np.asarray(out.observed["volume"]).tolist()}))
+"""
+
+
+def test_a_batch_sharded_over_two_devices_gives_each_member_its_own_beats():
+    """The sweeps shard a chunk over the cores' devices; ``periodic_beats_batch`` then runs a
+    queue on each (``jax.shard_map``). In a process with two host devices, 80 members (40 a
+    device, more than its lanes) get the beats and last beat that ``periodic_beats`` gives
+    each alone, here side by side on one device."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from cardiosoft.solve import BeatProblem, periodic_beats
+
+    flags = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    run = subprocess.run(
+        [sys.executable, "-c", SHARDED_QUEUE], env={**os.environ, "XLA_FLAGS": flags},
+        capture_output=True, text=True, timeout=600,
+    )
+    assert run.returncode == 0, run.stderr
+    sharded = json.loads(run.stdout.strip().splitlines()[-1])
+    ks = jnp.geomspace(4.0, 0.02, 80)
+
+    def alone(k):
+        def field(t, y, args):
+            return {"volume": -k * y["volume"] + 1e-6 * jnp.sin(2 * jnp.pi * t)}
+
+        p = BeatProblem(field, {"volume": jnp.zeros(())}, 1.0, jnp.linspace(0, 1, 5), None, None)
+        return periodic_beats(*p[:4], jump_ts=None, total_volume=None, max_beats=80, tol=1e-4)
+
+    expected = jax.jit(jax.vmap(alone))(ks)
+    np.testing.assert_array_equal(sharded["beats"], expected.beats)
+    assert len(set(sharded["beats"])) > 10  # members that settle at many different beats
+    # the same steps; round-off apart (the lanes' vector width differs)
+    np.testing.assert_allclose(sharded["volume"], expected.observed["volume"], rtol=1e-12)
