@@ -267,6 +267,25 @@ def test_a_chunk_that_raises_fails_its_points_only(swept, monkeypatch):
         np.testing.assert_array_equal(got[name].values[kept], ds[name].values[kept])
 
 
+def test_the_summary_of_a_sweep_whose_every_point_failed_shows_no_range_and_no_warning(swept):
+    """Every point failed (NaN): the printed table shows "-" for the ranges and the best design,
+    and numpy's warning of an all-NaN slice does not reach the user's terminal."""
+    import warnings
+
+    from cardiosoft.sweep.cli import summary
+
+    ds, _ = swept
+    failed = ds.copy()
+    for name in ("stroke_volume_ml", "peak_force_N", "efficiency"):
+        failed[name] = failed[name] * np.nan
+    failed["steady"] = failed["steady"] & False
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        table = summary(failed)
+    rows = table.splitlines()[1:]
+    assert rows and all(row.split()[-3:] == ["-", "-", "-"] for row in rows), table
+
+
 def test_nan_surrogate_marks_points_not_steady_with_the_reason():
     import jax
 

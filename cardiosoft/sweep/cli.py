@@ -160,16 +160,19 @@ def summary(ds) -> str:
         sv, force = cut[sv_name].values, cut[force_name].values
         steady = int(cut["steady"].values.sum())
         best = _best(cut, best_name, coords)
-        with np.errstate(all="ignore"):
-            sv_range = f"{np.nanmin(sv):5.1f}-{np.nanmax(sv):5.1f}"
-            f_range = f"{np.nanmin(force):5.1f}-{np.nanmax(force):5.1f}"
-        if not np.isfinite(sv).any():
-            sv_range = f_range = "-"
+        sv_range, f_range = _value_range(sv), _value_range(force)
         head_txt = "-" if head is None else f"{head:g} mmHg"
         lines.append(
             f"{head_txt:>9}  {rate:5g}  {steady:6d}  {sv_range:>11}  {f_range:>11}   {best}"
         )
     return "\n".join(lines)
+
+
+def _value_range(values) -> str:
+    """``"low-high"`` of the finite ``values``; ``"-"`` when none is (every point failed:
+    numpy's nanmin would warn of an all-NaN slice)."""
+    finite = np.asarray(values)[np.isfinite(values)]
+    return f"{finite.min():5.1f}-{finite.max():5.1f}" if finite.size else "-"
 
 
 def _check(args) -> None:
