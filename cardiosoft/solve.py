@@ -605,14 +605,13 @@ def periodic_beats_batch(
     loop = _BeatLoop(max_beats, tol, config, change)
     n = jax.tree_util.tree_leaves(members)[0].shape[0]
     devices = jax.devices()
+    sharded = len(devices) > 1 and n % len(devices) == 0  # as beat_solution.shard spreads it
+    share = n // len(devices) if sharded else n
     fixed = isinstance(tol, int | float) and tol == 0  # every member runs max_beats
-    if fixed or queue_lanes(n // len(devices)) >= n // len(devices):
+    if fixed or queue_lanes(share) >= share:
         return jax.vmap(lambda m: _run_one(loop, problem(m)))(members)
-    if len(devices) == 1:
+    if not sharded:
         return _queue(loop, problem, members)
-    if n % len(devices):  # not sharded (beat_solution.shard): one queue on one device
-        return _queue(loop, problem, members)
-    # a batch sharded over several devices (the sweeps'): a queue on each device
     mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
     spec = jax.sharding.PartitionSpec("batch")
     # check_vma off: the queue's lane bookkeeping starts the same on every device (not varying
