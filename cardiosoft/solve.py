@@ -494,7 +494,7 @@ def periodic_beats(
     ``result``; nothing is raised.
     """
     problem = BeatProblem(field, y0, period, ts, jump_ts, total_volume, observe)
-    return _run_one(_BeatLoop(max_beats, tol, config, change), problem)
+    return _run_one(_BeatLoop.of(max_beats, tol, config, change), problem)
 
 
 class BeatProblem(NamedTuple):
@@ -518,8 +518,14 @@ class _BeatLoop(NamedTuple):
 
     max_beats: int
     tol: Any
-    config: SolverConfig | None
-    change: Callable | None
+    config: SolverConfig
+    change: Callable
+
+    @classmethod
+    def of(cls, max_beats, tol, config, change) -> _BeatLoop:
+        """The loop with :func:`periodic_beats`'s defaults filled in (config, change)."""
+        config = preset("default") if config is None else config
+        return cls(max_beats, tol, config, _cycle_residual if change is None else change)
 
     def start(self, p: BeatProblem):
         import diffrax
@@ -535,14 +541,12 @@ class _BeatLoop(NamedTuple):
     # last beat is then integrated once more from its start, the same steps, with its samples.
     def step(self, p: BeatProblem, carry):
         y, beats, residual, _, drift, _, _, v_ref = carry
-        config = preset("default") if self.config is None else self.config
-        change = _cycle_residual if self.change is None else self.change
-        sol = _one_beat(p.field, p.period, y, None, p.jump_ts, config)
+        sol = _one_beat(p.field, p.period, y, None, p.jump_ts, self.config)
         y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
         if p.total_volume is not None:
             drift = jnp.maximum(drift, jnp.abs(p.total_volume(y_end) - v_ref) / jnp.abs(v_ref))
         code = result_code(sol.result)
-        return y_end, beats + 1, change(y, y_end), residual, drift, code, y, v_ref
+        return y_end, beats + 1, self.change(y, y_end), residual, drift, code, y, v_ref
 
     def running(self, carry):
         _, beats, residual, previous, _, code, _, _ = carry
@@ -554,9 +558,8 @@ class _BeatLoop(NamedTuple):
         if p.ts is None:
             observed, steps, code = None, jnp.array(0), _finite_or_failed(y_end, code)
         else:
-            config = preset("default") if self.config is None else self.config
             last = _one_beat(p.field, p.period, y_start, _phases(p.ts, p.period), p.jump_ts,
-                             config)
+                             self.config)
             observed = last.ys if p.observe is None else p.observe(p.ts, last.ys)
             code, steps = _finite_or_failed(last.ys, code), last.stats["num_steps"]
         return Beats(p.ts, observed, y_start, y_end, beats, residual, drift, code, steps,
@@ -602,7 +605,7 @@ def periodic_beats_batch(
     batch sharded over several devices (:func:`cardiosoft.beat_solution.shard`, the sweeps')
     runs a queue on each device.
     """
-    loop = _BeatLoop(max_beats, tol, config, change)
+    loop = _BeatLoop.of(max_beats, tol, config, change)
     n = jax.tree_util.tree_leaves(members)[0].shape[0]
     devices = jax.devices()
     sharded = len(devices) > 1 and n % len(devices) == 0  # as beat_solution.shard spreads it
