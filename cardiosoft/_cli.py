@@ -176,9 +176,53 @@ SOLVES_MORE_THAN_COMPILES = frozenset({"--uncertainty"})
 ``simulate --bpm 60 --uncertainty`` (48 draws x 3 heads, the batch running until its slowest
 draw settles, up to 300 beats) from fresh processes on 2 cores, 2026-12-06: with
 :data:`FAST_COMPILE_FLAGS` 33.7 s cold and 18.0 s warm; with XLA's defaults 33.1 s and 6.7 s;
-with the classic emitters alone 34.0 s and 8.3 s. (The design searches were measured too and
-keep the flags: the bench's 23.1 s cold against 32.4 s at XLA's defaults, warm 3.8 s against
-3.5 s; ``tah``'s 60.5 and 32.8 s against 53.3 and 26.3 s.)"""
+with the classic emitters alone 34.0 s and 8.3 s. (The design searches of the pump scenes were
+measured too and keep the flags: the bench's 23.1 s cold against 32.4 s at XLA's defaults, warm
+3.8 s against 3.5 s; the closed loops' do not, :func:`solves_more_than_compiles`.)"""
+
+
+def solves_more_than_compiles(tool: str, argv) -> bool:
+    """Whether ``tool`` run with ``argv`` spends more time solving than compiling: an option of
+    :data:`SOLVES_MORE_THAN_COMPILES`, or ``design`` on a closed loop (``--scene`` a shipped
+    one, or a .toml file of ``kind = "closed_loop"``). A closed loop's design shoots to the
+    periodic orbit some 50 times (Newton on an 11-state map, each iteration a beat with its
+    derivatives); at XLA's defaults, against level 0, from fresh processes on 2 cores
+    (2026-12-07, a cold and two warm runs each): ``tah`` (``--target-co 5 --lap 8 --rap 5``)
+    57.4 -> 41.3 s cold and 34.6 -> 14.8 s warm, ``soft-lv`` (``--target-co 4.5``) 33.1 ->
+    30.7 s and 16.4 -> 9.4 s, ``soft-rv`` 27.6 -> 28.0 s and 8.7 -> 7.1 s. Tests and
+    notebooks, run in-process, run at XLA's defaults too."""
+    options = {a.split("=")[0] for a in argv}
+    if SOLVES_MORE_THAN_COMPILES & options:
+        return True
+    return tool == "design" and _closed_loop_scene(_option_value(argv, "--scene"))
+
+
+def _option_value(argv, option: str) -> str | None:
+    """The value of ``option`` in ``argv`` (``--scene X`` or ``--scene=X``; the last one)."""
+    value = None
+    for i, arg in enumerate(argv):
+        if arg == option and i + 1 < len(argv):
+            value = argv[i + 1]
+        elif arg.startswith(option + "="):
+            value = arg.partition("=")[2]
+    return value
+
+
+def _closed_loop_scene(scene: str | None) -> bool:
+    """Whether ``scene`` (a ``--scene`` value) names a closed loop; anything unreadable is
+    not one here (the command itself then says what is wrong with it)."""
+    import tomllib
+
+    from cardiosoft.scene import LOOP_SCENE_NAMES
+
+    if scene is None or scene in LOOP_SCENE_NAMES:
+        return scene is not None
+    if not scene.endswith(".toml"):
+        return False
+    try:
+        return tomllib.loads(Path(scene).read_text()).get("kind") == "closed_loop"
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False
 
 
 def fast_compile_flags() -> tuple[str, ...]:
@@ -199,7 +243,7 @@ def xla_flags(tool: str, argv, current: str | None) -> str | None:
     the ``current`` one (None: unset); None leaves it as it is."""
     options = {a.split("=")[0] for a in argv}
     compiling = tool in ("simulate", "design") or (tool == "stress" and "--quick" in options)
-    if compiling and not SOLVES_MORE_THAN_COMPILES & options:
+    if compiling and not solves_more_than_compiles(tool, argv):
         return " ".join(fast_compile_flags()) if current is None else None
     flags = current or ""
     if tool == "sweep" and "xla_force_host_platform_device_count" not in flags:
@@ -218,9 +262,9 @@ def prepare_process(tool: str, argv) -> None:
       little for a few solves (simulate's results agree to 1e-13; a design search's calls run
       about 3x slower, ~0.15 s against 0.05 s on the bench, which tens of calls hardly notice).
       With jaxlib 0.10 (where it was measured) also XLA's classic CPU emitters instead of its
-      fusion emitters (:data:`FAST_COMPILE_FLAGS`). Not with ``--uncertainty``
-      (:data:`SOLVES_MORE_THAN_COMPILES`), whose time is the posterior's draws, solved 3.5x
-      slower at level 0 and compiled no faster.
+      fusion emitters (:data:`FAST_COMPILE_FLAGS`). Not where solving dominates
+      (:func:`solves_more_than_compiles`): ``--uncertainty``, whose posterior's draws are
+      solved 3.5x slower at level 0 and compiled no faster, and a closed loop's design.
     - sweep, in this process (not with ``--workers`` / ``--scheduler``, whose workers share the
       cores): as many XLA host devices as cores, so that each chunk is sharded over all of them
       (``benchmarks/sweep_throughput.py``, section 4).
