@@ -304,11 +304,13 @@ def _grid(ev: _Evaluator, start_x, targets) -> np.ndarray:
     return best
 
 
-def _refine(ev: _Evaluator, x0, targets, max_evaluations: int) -> np.ndarray:
-    """Trust-region least squares from ``x0``; the Jacobian of each point from the same call."""
+def _refine(ev: _Evaluator, x0, targets, max_evaluations: int):
+    """Trust-region least squares from ``x0``; the Jacobian of each point from the same call.
+    Returns the answer and its solved call (its first row), or None where the answer was
+    never evaluated."""
     from scipy.optimize import least_squares
 
-    cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+    cache: dict[bytes, tuple[np.ndarray, np.ndarray, object]] = {}
 
     def at(x):
         key = np.asarray(x).tobytes()
@@ -316,10 +318,10 @@ def _refine(ev: _Evaluator, x0, targets, max_evaluations: int) -> np.ndarray:
             # step inwards at the upper face, so every point stays in the box
             steps = np.where(x + FD_STEP <= 1.0, FD_STEP, -FD_STEP)
             xs = np.vstack([x, x + np.diag(steps)])
-            _, observed = ev.solve(xs)
+            out, observed = ev.solve(xs)
             r = _residuals(observed, targets)
             r = np.where(np.isfinite(r), r, 1e6)  # a failed orbit: far from every target
-            cache[key] = (r[0], ((r[1:] - r[0]) / steps[:, None]).T)
+            cache[key] = (r[0], ((r[1:] - r[0]) / steps[:, None]).T, (out, observed))
         return cache[key]
 
     fit = least_squares(
@@ -332,7 +334,8 @@ def _refine(ev: _Evaluator, x0, targets, max_evaluations: int) -> np.ndarray:
         xtol=1e-4,
         ftol=1e-3,
     )
-    return fit.x
+    solved = cache.get(np.asarray(fit.x).tobytes())
+    return fit.x, None if solved is None else solved[2]
 
 
 def _design_text(values: dict) -> str:
@@ -429,8 +432,9 @@ def optimise_loop(
     )
     x = _grid(ev, start_x, targets)
     say(f"refining (trust-region least squares, {ev.batch} members a call) ...")
-    x = _refine(ev, x, targets, max_evaluations)
-    out, observed = ev.solve(x[None])
+    x, solved = _refine(ev, x, targets, max_evaluations)
+    # the answer's orbit is that of the call that evaluated it (its first row), not solved again
+    out, observed = ev.solve(x[None]) if solved is None else solved
     design = {p: float(v) for p, v in zip(free, ev.values(x), strict=True)}
     answer = scene.with_numbers(design)
     members = loop_member_results(answer, [answer.name], _first(out), pump.domain)
