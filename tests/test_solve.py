@@ -193,6 +193,28 @@ def test_orbit_beat_without_an_isolated_orbit_has_nan_derivatives_not_wrong_ones
     assert bool(jnp.all(jnp.isnan(tangent)))
 
 
+def test_shooting_that_stops_short_of_its_tolerance_goes_on_from_newtons_last_iterate():
+    """Newton can stop short of its own tolerance, much nearer the orbit than its guess (on a
+    closed loop's kinked map it stalls at the integrator's noise). On a slow linear relaxation
+    (k = 0.02 per beat) one Newton step from a 2-beat guess lands on the orbit, and one is all
+    it is allowed: the beats go on from there, 2 to the steady test, V(0) on the analytic orbit
+    to the solver's tolerance (rtol 1e-11, here 1e-9 of the orbit's amplitude). From the guess
+    instead (0.3 ml off the orbit), each beat closes 2 % of the distance, a change below the
+    steady tolerance of 0.01 ml: the beats would stop at once, 0.3 ml off."""
+    from cardiosoft.shooting import shoot_periodic
+
+    field = Forced(jnp.asarray(2e-6), 0.02, 1.0)
+    config = SolverConfig(rtol=1e-11, atol=1e-18, adjoint=diffrax.ForwardMode())
+    out = jax.jit(
+        lambda y0: shoot_periodic(
+            field, y0, 1.0, None, jump_ts=None, total_volume=lambda y: y["volume"],
+            closed=False, guess_beats=2, max_beats=200, tol=0.01, config=config, max_newton=1,
+        )
+    )({"volume": jnp.zeros(())})
+    assert int(out.newton_steps) == 1 and int(out.beats) == 2 + 2
+    np.testing.assert_allclose(out.y0["volume"], field.orbit(0.0), rtol=1e-9)
+
+
 def test_a_queued_batch_gives_each_member_the_beats_it_gets_alone():
     """``periodic_beats_batch`` on a batch larger than its lanes (40 members on
     ``queue_lanes(40)`` lanes): each member's beat count, residual and last beat are those of
