@@ -87,12 +87,16 @@ GRID_LEVELS_MANY = (0.25, 0.75)
 GRID_MAX = 40
 GUESS_BEATS = 30
 """Beats from the scene's initial state before Newton shooting starts (module docstring)."""
-MAX_NEWTON = 16
+MAX_NEWTON = 8
 """Newton's iterations at most (:func:`~cardiosoft.network.loop_batch.solve_loop`). Near the box's
-corners it converges linearly (6-16 iterations at Omega 6, C 0.65 on the left of ``tah``); at
-8 the fallback's beats ended 0.02 mmHg from the orbit, a third of what a difference step
-changes. Newton's own tolerance is a tenth of the scene's steady tolerance (1e-3 ml or mmHg);
-asked for 1e-4, it ran out of 24 iterations on most of the search's members."""
+corners it converges linearly (6-16 iterations at Omega 6, C 0.65 on the left of ``tah``), and
+on some grid designs it stalls at the integrator's noise, just above its own tolerance (a tenth
+of the scene's steady tolerance, 1e-3 ml or mmHg). Stopped at 8, the beats go on from its last
+iterate (:func:`~cardiosoft.shooting.shoot_periodic`): at ``tah``'s answer and its difference
+points, against beats to 1e-5, the largest error was 4.6e-4 mmHg with 8 as with 16 (CO 9.7e-5
+against 7.6e-5 l/min), and tah's search cost 0.14 s an evaluation against 0.17 s (2026-12-07).
+When the beats started from the guess instead, 16 were needed: at 8 they ended 0.02 mmHg from
+the orbit."""
 FD_STEP = 1e-2
 """Forward-difference step in the unit box (0.06 in Omega, 6.5e-3 in C): large enough that
 a converged orbit's own error (1e-3 mmHg) is ~1e-2 of the change it makes (0.07 mmHg of LAP
