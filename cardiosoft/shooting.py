@@ -67,12 +67,12 @@ def shoot_periodic(
        (relative; lv-systemic and rv-pulmonary at 240-300 bpm), now ~1e-15.
     3. From the orbit (where Newton stopped short of its tolerance, from its last iterate if
        one beat changes that less than the guess's last beat did, else from the guess), beat
-       after beat as in
-       :func:`periodic_beats` until the cycle-to-cycle change is below ``tol``, at most
-       ``max_beats``: at a converged orbit that is two beats (the steady test); otherwise beat
-       after beat is the fallback, and ``residual`` says how it ended. The last beat is then
-       integrated once more with its samples, by :func:`orbit_beat`; with ``ts`` None it is
-       not, and ``y0``, the orbit's start, is what carries the orbit's derivative.
+       after beat as in :func:`periodic_beats` until the cycle-to-cycle change is below
+       ``tol``, at most ``max_beats``: at a converged orbit that is two beats (the steady
+       test); otherwise beat after beat is the fallback, and ``residual`` says how it ended.
+       The last beat is then integrated once more with its samples, by :func:`orbit_beat`;
+       with ``ts`` None it is not, and ``y0``, the orbit's start, is what carries the orbit's
+       derivative.
 
     **Derivatives** (``jax.jvp``/``jacfwd`` of anything downstream) are the periodic orbit's,
     ``dy*/dtheta = -(dPhi/dy - I)^-1 dPhi/dtheta`` (implicit function theorem), taken at the
