@@ -21,9 +21,10 @@ def test_xla_flags_fast_compiles_where_compiling_dominates_and_keeps_a_users_own
 
 def test_xla_flags_keep_xlas_settings_for_a_closed_loops_design(tmp_path):
     """A closed loop's design shoots to its orbit some 50 times: its time is solving (tah warm
-    34.6 s at level 0 against 14.8 s at XLA's settings, cardiosoft._cli.solves_more_than_
-    compiles), so it keeps XLA's settings, for a shipped loop and a loop's own .toml file
-    alike; a pump scene's design and a closed loop's simulate still compile fast."""
+    34.6 s at level 0 against 14.8 s at XLA's settings; see
+    cardiosoft._cli.solves_more_than_compiles), so it keeps XLA's settings, for a shipped loop
+    and a loop's own .toml file alike; a pump scene's design and a closed loop's simulate
+    still compile fast."""
     level_0 = "--xla_backend_optimization_level=0"
     assert xla_flags("design", ["--scene", "tah", "--target-co", "5"], None) is None
     assert xla_flags("design", ["--scene=soft-lv", "--target-co", "4.5"], None) is None
