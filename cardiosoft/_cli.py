@@ -183,9 +183,9 @@ measured too and keep the flags: the bench's 23.1 s cold against 32.4 s at XLA's
 
 def solves_more_than_compiles(tool: str, argv) -> bool:
     """Whether ``tool`` run with ``argv`` spends more time solving than compiling: an option of
-    :data:`SOLVES_MORE_THAN_COMPILES`, or ``design`` on a closed loop (``--scene`` a shipped
-    one, or a .toml file of ``kind = "closed_loop"``). A closed loop's design shoots to the
-    periodic orbit some 50 times (Newton on an 11-state map, each iteration a beat with its
+    :data:`SOLVES_MORE_THAN_COMPILES`, or ``design`` on a closed loop
+    (:func:`cardiosoft.scene.is_closed_loop`). A closed loop's design shoots to the periodic
+    orbit some 50 times (Newton on an 11-state map, each iteration a beat with its
     derivatives); at XLA's defaults, against level 0, from fresh processes on 2 cores
     (2026-12-07, a cold and two warm runs each): ``tah`` (``--target-co 5 --lap 8 --rap 5``)
     57.4 -> 41.3 s cold and 34.6 -> 14.8 s warm, ``soft-lv`` (``--target-co 4.5``) 33.1 ->
@@ -194,7 +194,12 @@ def solves_more_than_compiles(tool: str, argv) -> bool:
     options = {a.split("=")[0] for a in argv}
     if SOLVES_MORE_THAN_COMPILES & options:
         return True
-    return tool == "design" and _closed_loop_scene(_option_value(argv, "--scene"))
+    if tool != "design":
+        return False
+    from cardiosoft.scene import is_closed_loop
+
+    scene = _option_value(argv, "--scene")
+    return scene is not None and is_closed_loop(scene)
 
 
 def _option_value(argv, option: str) -> str | None:
@@ -206,23 +211,6 @@ def _option_value(argv, option: str) -> str | None:
         elif arg.startswith(option + "="):
             value = arg.partition("=")[2]
     return value
-
-
-def _closed_loop_scene(scene: str | None) -> bool:
-    """Whether ``scene`` (a ``--scene`` value) names a closed loop; anything unreadable is
-    not one here (the command itself then says what is wrong with it)."""
-    import tomllib
-
-    from cardiosoft.scene import LOOP_SCENE_NAMES
-
-    if scene is None or scene in LOOP_SCENE_NAMES:
-        return scene is not None
-    if not scene.endswith(".toml"):
-        return False
-    try:
-        return tomllib.loads(Path(scene).read_text()).get("kind") == "closed_loop"
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
-        return False
 
 
 def fast_compile_flags() -> tuple[str, ...]:

@@ -63,6 +63,7 @@ __all__ = [
     "Scene",
     "WaterColumnAfterload",
     "Windkessel3Afterload",
+    "is_closed_loop",
     "load_scene",
 ]
 
@@ -141,6 +142,8 @@ SCENE_NAMES = ("bench-static", "bench-dynamic", "lv-systemic", "rv-pulmonary")
 LOOP_SCENE_NAMES = ("heart", "soft-lv", "soft-rv", "tah")
 """The shipped closed-loop scenes (``kind = "closed_loop"``,
 :mod:`cardiosoft.network.loop_scene`)."""
+LOOP_KIND = "closed_loop"
+"""A scene file's ``kind`` that makes it a closed loop (:func:`load_scene`)."""
 ACCURACY = ACCURACY_PRESETS
 
 
@@ -518,6 +521,18 @@ def load_scene(name_or_path, pump=None) -> Scene | LoopScene:
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"{source}: not valid TOML: {err}") from None
     doc, calibrated = select_pump(source, doc, pump)
-    if doc.get("kind") == "closed_loop":
+    if doc.get("kind") == LOOP_KIND:
         return parse_loop_scene(source, doc)
     return _parse(source, doc, calibrated)
+
+
+def is_closed_loop(name_or_path) -> bool:
+    """Whether ``name_or_path`` names a closed loop, without loading it: a shipped one
+    (:data:`LOOP_SCENE_NAMES`) or a TOML file of ``kind = "closed_loop"``. False for anything
+    unreadable, which :func:`load_scene` then refuses with the reason."""
+    if str(name_or_path) in LOOP_SCENE_NAMES:
+        return True
+    try:
+        return tomllib.loads(Path(name_or_path).read_text()).get("kind") == LOOP_KIND
+    except (OSError, ValueError):  # tomllib's and the text's decoding errors are ValueErrors
+        return False
