@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from cardiosoft.design import cli
+from cardiosoft.design import loop as design_loop
 from cardiosoft.design.loop import CO_WEIGHT, PRESSURE_WEIGHT, loop_free, optimise_loop
 from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.scene import load_scene
@@ -51,8 +52,6 @@ def test_free_names_expand_to_every_pump_and_refuse_the_rest():
 
 def test_a_target_made_by_an_independent_solve_is_found_again(truth, monkeypatch):
     co, lap = truth
-    import cardiosoft.design.loop as design_loop
-
     calls = []
 
     def spy(scene, **kwargs):
