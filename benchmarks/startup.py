@@ -10,10 +10,13 @@ The solve itself takes about 30 ms; the rest of a command is start-up: importing
 diffrax, tracing and compiling its programs. This script prints
 
 1. per command (:data:`COMMANDS`), the wall time of N fresh processes (best and median) with a
-   cold compile cache (an empty folder), then a warm one (the folder the cold run filled;
-   cardiosoft._cli) with the programs loaded from the store (cardiosoft.program_store), and a
-   warm one with the programs traced in each process (``CARDIOSOFT_PROGRAM_STORE=0``, issue
-   #41's "before"), with the ratios to each other and to the issue's targets;
+   cold compile cache (an empty folder: a fresh machine), its store filled from the programs
+   shipped with the package (``tools/ship_programs.py``), and the same with nothing shipped
+   (``CARDIOSOFT_SHIPPED_PROGRAMS=0``: every program traced); then a warm one (the folder the
+   cold run filled; cardiosoft._cli) with the programs loaded from the store
+   (cardiosoft.program_store), and a warm one with the programs traced in each process
+   (``CARDIOSOFT_PROGRAM_STORE=0``, issue #41's "before"), with the ratios to each other and
+   to the issue's targets;
 2. the import time of a fresh process: ``import cardiosoft`` against issue #41's 0.8 s, and
    the modules the solve needs (JAX, diffrax, the engine);
 3. the anchor: ``svzerod`` (svZeroDSolver's own build) solving its closed-loop heart case
@@ -85,10 +88,17 @@ def _wall(cmd, env=None) -> float:
 
 
 def _cold_warm_traced(cmd, repeat: int) -> dict[str, list[float]]:
-    walls = {"cold": [], "warm": [], "warm, traced": []}
+    walls = {"cold": [], "cold, traced": [], "warm": [], "warm, traced": []}
     for _ in range(repeat):
         with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as other:
             env = {**os.environ, "CARDIOSOFT_COMPILE_CACHE": cache}
+            # a fresh machine: nothing traced or compiled yet, nothing shipped (tracing) ...
+            nothing = {
+                **env, "CARDIOSOFT_COMPILE_CACHE": os.path.join(other, "cold"),
+                "CARDIOSOFT_SHIPPED_PROGRAMS": "0",
+            }  # fmt: skip
+            walls["cold, traced"].append(_wall(cmd, nothing))
+            # ... and with the programs shipped with the package (tools/ship_programs.py)
             walls["cold"].append(_wall(cmd, env))  # fills the empty cache folder
             walls["warm"].append(_wall(cmd, env))  # the stored programs, not traced
             # the compile cache alone, the programs traced in each process; a folder of its
@@ -124,7 +134,10 @@ def main(argv=None) -> int:
                 f"     {kind + ':':<14} best {min(w):5.1f} s, median {median[kind]:5.1f} s"
                 f" ({', '.join(f'{x:.1f}' for x in w)})"
             )
-        ratios = [f"warm / warm traced {median['warm'] / median['warm, traced']:.2f}"]
+        ratios = [
+            f"cold / cold traced {median['cold'] / median['cold, traced']:.2f}",
+            f"warm / warm traced {median['warm'] / median['warm, traced']:.2f}",
+        ]
         if warm_target:
             ratio = median["warm"] / warm_target
             ratios.append(f"warm / issue #41's {warm_target:g} s: {ratio:.2f}")

@@ -23,6 +23,9 @@ CACHE_VARIABLE = "CARDIOSOFT_COMPILE_CACHE"
 STORE_VARIABLE = "CARDIOSOFT_PROGRAM_STORE"
 """``0`` switches the store of exported programs off (:mod:`cardiosoft.program_store`); it
 lives in the compile cache's folder and is off with it."""
+SHIPPED_VARIABLE = "CARDIOSOFT_SHIPPED_PROGRAMS"
+"""``0``: a program missing from the store is traced, never copied from the programs shipped
+with the package (:data:`cardiosoft.program_store.SHIPPED`; the benchmarks' cold runs)."""
 EXIT_STATUS = (
     "exit status: 0 when it did what was asked (flags: {flags}; they are printed as warnings "
     "and listed under 'flags' in {output}); 1 when {failure}; 2 for bad input (one line, "
@@ -258,7 +261,8 @@ def prepare_process(tool: str, argv) -> None:
       (``benchmarks/sweep_throughput.py``, section 4).
     - simulate, design, sweep and credibility: the compile cache (:func:`use_compile_cache`),
       and in its folder ``programs/`` the exported programs that spare a process the tracing
-      (:mod:`cardiosoft.program_store`; :data:`STORE_VARIABLE` switches them off).
+      (:mod:`cardiosoft.program_store`; :data:`STORE_VARIABLE` switches them off), filled
+      first from the programs shipped with the package (:data:`SHIPPED_VARIABLE`).
 
     An ``XLA_FLAGS`` of the user's own is left as it is.
     """
@@ -266,11 +270,12 @@ def prepare_process(tool: str, argv) -> None:
     if flags is not None:
         os.environ["XLA_FLAGS"] = flags
     if tool in ("simulate", "design", "sweep", "credibility"):
-        from cardiosoft.program_store import use_program_store
+        from cardiosoft.program_store import SHIPPED, use_program_store
 
         folder = use_compile_cache()  # the next process loads what this one compiles
         if folder is not None and os.environ.get(STORE_VARIABLE, "").strip() != "0":
-            use_program_store(folder / "programs")  # and what it traced
+            shipped = os.environ.get(SHIPPED_VARIABLE, "").strip() != "0"
+            use_program_store(folder / "programs", SHIPPED if shipped else None)  # and traced
 
 
 def compile_cache_folder() -> Path | None:

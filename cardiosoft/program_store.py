@@ -36,6 +36,14 @@ traces, exports and stores (0.5 s more than tracing alone).
 - :func:`stored_value` keeps a value a command computes eagerly before it solves, the same
   every run of one input (an svZeroDSolver model's solving order: 0.9 s of its 3.3 s warm
   run), as a JSON entry of the same format, keyed by the input's bytes.
+- Programs shipped with the package (:data:`SHIPPED`, written by ``tools/ship_programs.py``):
+  where the store has no entry for a key, a shipped entry of that key is copied into it, so
+  that a fresh machine's first run of the main job loads its programs instead of tracing them
+  (issue #41, item 2: tracing is 3.7 of the cold main job's 7.6 s). StableHLO is portable
+  across CPUs; the executable is compiled on the machine, as before. An entry's header names
+  the sources it was traced from (``sources``): an edit of cardiosoft makes every shipped entry
+  stale (never found, since the key holds that digest), and ``tests/test_program_store.py``
+  says so until they are written again.
 - The store keeps at most :data:`STORE_LIMIT_BYTES`: each edit of cardiosoft's sources or
   new version keys new entries (about 0.2 MB each), so writing one deletes the least recently
   used beyond the limit (a read marks an entry used). Deleting the folder is always safe.
@@ -55,8 +63,9 @@ from importlib import metadata
 from pathlib import Path
 
 __all__ = [
-    "FORMAT", "STORE_LIMIT_BYTES", "StoredLowering", "output_layout", "program_key", "prune",
-    "stored_call", "stored_lowering", "stored_value", "use_program_store",
+    "FORMAT", "SHIPPED", "STORE_LIMIT_BYTES", "StoredLowering", "output_layout", "program_key",
+    "prune", "read_header", "sources_digest", "stored_call", "stored_lowering", "stored_value",
+    "use_program_store",
 ]  # fmt: skip
 
 FORMAT = "cardiosoft-program-1"
@@ -65,23 +74,35 @@ SUFFIX = ".jaxprogram"
 STORE_LIMIT_BYTES = 256 * 2**20
 """The most a store holds: about a thousand programs, every command's for several versions."""
 
-_state = {"folder": None, "loaded": {}}  # this process's store and its programs by key
+SHIPPED = Path(__file__).resolve().parent / "programs"
+"""The programs shipped with the package: the main job's (``tools/ship_programs.py``)."""
+
+# this process's store, the shipped entries it may copy, and its programs by key
+_state = {"folder": None, "shipped": None, "loaded": {}}
 
 
-def use_program_store(folder: Path | None) -> None:
-    """Store and load this process's programs in ``folder`` (None: trace every program)."""
+def use_program_store(folder: Path | None, shipped: Path | None = None) -> None:
+    """Store and load this process's programs in ``folder`` (None: trace every program); an
+    entry missing there is copied from ``shipped`` where that folder has it."""
     _state["folder"] = None if folder is None else Path(folder)
+    _state["shipped"] = None if shipped is None else Path(shipped)
     _state["loaded"] = {}
 
 
 @functools.cache
-def _versions() -> dict:
+def sources_digest() -> str:
+    """The SHA-256 of cardiosoft's Python sources (their paths and bytes): part of every key."""
     package = Path(__file__).resolve().parent
     sources = hashlib.sha256()
     for path in sorted(package.rglob("*.py")):
         sources.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes())
+    return sources.hexdigest()
+
+
+@functools.cache
+def _versions() -> dict:
     return {
-        "cardiosoft": sources.hexdigest(),
+        "cardiosoft": sources_digest(),
         **{name: metadata.version(name) for name in ("jax", "jaxlib", "diffrax", "equinox")},
         "python": sys.version.split()[0],
     }
@@ -177,9 +198,17 @@ def _rebuild(layout, leaves):
     return _imported(layout["module"])(**fields)
 
 
-def _read(path: Path, key: str, load=None):
-    """The entry at ``path`` as (layout, program), or None when it is missing, foreign, stale
-    or corrupt. ``load`` reads the bytes after the layout (default: a serialised program)."""
+def read_header(path: Path) -> dict:
+    """The header of the entry at ``path``: its ``format``, ``key``, ``kind`` ("program" or
+    "value"), the ``sources`` digest it was made from (:func:`sources_digest`), ..."""
+    with open(path, "rb") as f:
+        return json.loads(f.readline())
+
+
+def _read(path: Path, key: str, load=None, touch: bool = True):
+    """The entry at ``path`` as (layout, program, its bytes), or None when it is missing,
+    foreign, stale or corrupt. ``load`` reads the bytes after the layout (default: a
+    serialised program); ``touch`` marks the entry used (a store's, not a shipped one)."""
     from jax import export
 
     load = (lambda raw: export.deserialize(bytearray(raw))) if load is None else load
@@ -196,31 +225,51 @@ def _read(path: Path, key: str, load=None):
         program = load(body[size:])
     except Exception:  # any unreadable entry is rebuilt, never trusted
         return None
-    try:
-        os.utime(path)  # used now: pruned last
-    except OSError:
-        pass
-    return layout, program
+    if touch:
+        try:
+            os.utime(path)  # used now: pruned last
+        except OSError:
+            pass
+    return layout, program, raw
 
 
-def _write(path: Path, key: str, layout, program: bytes) -> None:
-    """Write the entry atomically: a concurrent reader sees the old entry or the new one."""
+def _write(path: Path, key: str, layout, program: bytes, kind: str = "program") -> None:
     text = json.dumps(layout).encode()
     body = text + program
     header = {
-        "format": FORMAT, "key": key, "digest": hashlib.sha256(body).hexdigest(),
-        "layout_bytes": len(text),
+        "format": FORMAT, "key": key, "kind": kind, "sources": sources_digest(),
+        "digest": hashlib.sha256(body).hexdigest(), "layout_bytes": len(text),
     }  # fmt: skip
+    _write_bytes(path, json.dumps(header).encode() + b"\n" + body)
+
+
+def _write_bytes(path: Path, raw: bytes) -> None:
+    """Write an entry atomically (a concurrent reader sees the old entry or the new one), then
+    prune the store to its limit."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(json.dumps(header).encode() + b"\n" + body)
+            f.write(raw)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     prune(path.parent, STORE_LIMIT_BYTES)
+
+
+def _stored_entry(path: Path, key: str, load=None):
+    """The store's entry at ``path`` as (layout, program), else the shipped entry of its
+    name, copied into the store first; None when neither is there and sound."""
+    entry = _read(path, key, load)
+    if entry is None and _state["shipped"] is not None:
+        entry = _read(_state["shipped"] / path.name, key, load, touch=False)
+        if entry is not None:
+            try:
+                _write_bytes(path, entry[2])  # the next process reads the store only
+            except OSError as err:  # a store that cannot be written: this run goes on
+                print(f"warning: program store {path.parent}: {err}", file=sys.stderr)
+    return None if entry is None else entry[:2]
 
 
 def prune(folder: Path, limit: int) -> list[Path]:
@@ -246,7 +295,7 @@ def prune(folder: Path, limit: int) -> list[Path]:
 
 def _export(fn, keywords, static, tree, leaves):
     """Trace ``fn`` once as a function of the array ``leaves``: (layout, exported program), or
-    None when its output cannot be stored."""
+    None when its output cannot be stored. JAX's log names that trace ``<fn>_exported``."""
     import equinox as eqx
     import jax
     from jax import export
@@ -258,6 +307,7 @@ def _export(fn, keywords, static, tree, leaves):
         box["layout"] = output_layout(out)
         return jax.tree.leaves(out)
 
+    flat.__name__ = flat.__qualname__ = f"{fn.__name__}_exported"
     shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
     try:
         program = export.export(jax.jit(flat))(*shapes)
@@ -319,7 +369,7 @@ def _lowering(fn, keywords, key, static, tree, leaves) -> StoredLowering | None:
 
     folder = _state["folder"]
     path = folder / f"{key}{SUFFIX}"
-    entry = _read(path, key)
+    entry = _stored_entry(path, key)
     if entry is None:
         entry = _export(fn, keywords, static, tree, leaves)
         if entry is None:
@@ -364,7 +414,7 @@ def stored_value(name: str, material, compute, encode, decode):
     }  # fmt: skip
     key = hashlib.sha256(json.dumps(described, sort_keys=True).encode()).hexdigest()
     path = _state["folder"] / f"{key}{SUFFIX}"
-    entry = _read(path, key, load=lambda raw: raw)
+    entry = _stored_entry(path, key, load=lambda raw: raw)
     if entry is not None:
         try:
             return decode(entry[0])
@@ -372,7 +422,7 @@ def stored_value(name: str, material, compute, encode, decode):
             pass
     value = compute()
     try:
-        _write(path, key, encode(value), b"")
+        _write(path, key, encode(value), b"", kind="value")
     except OSError as err:  # a store that cannot be written: this run goes on
         print(f"warning: program store {path.parent}: {err}", file=sys.stderr)
     return value

@@ -53,6 +53,9 @@ def test_default_folder_follows_xdg_cache_home_and_a_second_process_reuses_it(tm
     # and beside the executables, the two programs exported (cardiosoft.program_store)
     assert len(list((folder / "programs").glob("*.jaxprogram"))) == 2
     assert "Persistent compilation cache hit for 'jit__solve'" not in cold.stderr
+    # a fresh machine's first run: the two were shipped with the package, copied, not traced
+    # (program_store.SHIPPED; an export's trace is logged as <function>_exported)
+    assert "_exported for jit" not in cold.stderr, "the main job's shipped programs are stale"
     warm, second = simulate(tmp_path, "warm", "--bpm", "30", PYTHONPROFILEIMPORTTIME="1", **env)
     for name in ("jit__solve", "jit_static_strokes"):
         assert f"Persistent compilation cache hit for '{name}'" in warm.stderr

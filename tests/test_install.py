@@ -71,6 +71,9 @@ def test_wheel_installs_and_simulate_compares_with_the_paper(tmp_path):
     assert Path(root) == site / "cardiosoft" / "_paper_data"
     assert (weights, rows) == (f"{DEFAULT_ARTIFACT}.eqx", "3")
 
+    # a fresh machine's cache; the wheel ships the main job's programs: copied, not traced
+    # (cardiosoft.program_store.SHIPPED; JAX's log names an export's trace <function>_exported)
+    env.update(CARDIOSOFT_COMPILE_CACHE=str(tmp_path / "cache"), JAX_LOG_COMPILES="1")
     out = subprocess.run(
         [python, "-m", "cardiosoft.simulate", "--bpm", "30", "--compare-paper"],
         capture_output=True,
@@ -81,4 +84,6 @@ def test_wheel_installs_and_simulate_compares_with_the_paper(tmp_path):
     )
     assert out.returncode == 0, out.stderr
     assert "found in sys.modules" not in out.stderr
+    assert "_exported for jit" not in out.stderr, "the wheel's shipped programs were not used"
+    assert len(list((tmp_path / "cache" / "programs").glob("*.jaxprogram"))) == 2
     assert len(re.findall(r"^\s+paper\s+\d", out.stdout, flags=re.MULTILINE)) == 3, out.stdout

@@ -18,7 +18,15 @@ import numpy as np
 import pytest
 
 from cardiosoft import program_store
-from cardiosoft.program_store import prune, stored_call, stored_value, use_program_store
+from cardiosoft.program_store import (
+    SHIPPED,
+    prune,
+    read_header,
+    sources_digest,
+    stored_call,
+    stored_value,
+    use_program_store,
+)  # fmt: skip
 
 ROOT = Path(__file__).resolve().parent.parent
 TRACED = []  # one entry each time the function below is traced
@@ -117,6 +125,43 @@ def test_pruning_deletes_the_least_recently_used_entries(store, monkeypatch):
     assert left not in written, "the write did not prune the store"
 
 
+def test_a_missing_entry_is_copied_from_the_shipped_programs_not_traced(tmp_path):
+    """A fresh machine's store is empty: the package's program of the same key is copied into
+    it and loaded; a damaged shipped entry is not trusted (the program is traced)."""
+    shipped, store = tmp_path / "shipped", tmp_path / "store"
+    use_program_store(shipped)  # the package's programs, exported from these sources
+    TRACED.clear()
+    stored_call(_beat_like, NUMBERS, 2.0)
+    (entry,) = shipped.glob("*.jaxprogram")
+    use_program_store(store, shipped)  # a new process on a fresh machine
+    out = stored_call(_beat_like, {"a": jnp.arange(3.0) + 1, "b": jnp.zeros(3)}, 2.0)
+    assert TRACED == [2.0], "the shipped program was traced again"
+    np.testing.assert_array_equal(out["y"], [2.0, 4.0, 6.0])
+    assert (store / entry.name).read_bytes() == entry.read_bytes()
+
+    raw = bytearray(entry.read_bytes())
+    raw[-50] ^= 0xFF  # one byte of the shipped program flipped
+    entry.write_bytes(bytes(raw))
+    fresh = tmp_path / "fresh"
+    use_program_store(fresh, shipped)
+    out = stored_call(_beat_like, NUMBERS, 2.0)
+    assert TRACED == [2.0, 2.0], "a damaged shipped entry was used"
+    np.testing.assert_array_equal(out["y"], [1.0, 3.0, 5.0])
+    use_program_store(None)
+
+
+def test_the_shipped_programs_were_exported_from_these_sources():
+    """Every program shipped with the package was traced from cardiosoft's current sources:
+    an edit makes them stale (unused, so a fresh machine traces again). If this fails, write
+    them again: ``python tools/ship_programs.py`` (about 2 minutes)."""
+    entries = sorted(SHIPPED.glob("*.jaxprogram"))
+    assert entries, f"no programs shipped in {SHIPPED}"
+    stale = [p.name for p in entries if read_header(p).get("sources") != sources_digest()]
+    assert not stale, f"{len(stale)} of {len(entries)} shipped programs are stale: run " \
+        "python tools/ship_programs.py"
+    assert {read_header(p)["kind"] for p in entries} == {"program"}
+
+
 def _value(store, numbers, calls):
     """A value kept in the store for ``numbers`` and a static part, counting its computations."""
 
@@ -177,26 +222,31 @@ def test_without_a_store_the_function_is_traced_as_usual():
     assert TRACED == [5.0]
 
 
-def _fresh(tmp_path, name: str, cache: str, command: list[str]) -> Path:
+def _fresh(tmp_path, name: str, cache: str, command: list[str], shipped: bool = False) -> Path:
     """``python -m cardiosoft.<command> --out tmp_path/name`` in a fresh process with the
-    compile cache (and its program store) in ``cache`` ("0": none)."""
+    compile cache (and its program store) in ``cache`` ("0": none), the programs shipped with
+    the package copied into the store or not."""
     out = tmp_path / name
+    env = {"CARDIOSOFT_COMPILE_CACHE": cache, "CARDIOSOFT_SHIPPED_PROGRAMS": str(int(shipped))}
     subprocess.run(
         [sys.executable, "-m", *command, "--quiet", "--no-plot", "--out", str(out)],
-        cwd=tmp_path, env={**os.environ, "CARDIOSOFT_COMPILE_CACHE": cache}, check=True,
-        capture_output=True, timeout=600,
+        cwd=tmp_path, env={**os.environ, **env}, check=True, capture_output=True, timeout=600,
     )  # fmt: skip
     return out
 
 
 def _stored_runs(tmp_path, command: list[str], programs: int) -> tuple[Path, list[Path]]:
     """The output of ``command`` traced without a store, then exporting into an empty store
-    (``programs`` entries), then loading from it."""
+    (``programs`` entries), then loading from it, and last from another empty store that the
+    shipped programs fill (``tools/ship_programs.py`` ships this command's)."""
     cache = str(tmp_path / "cache")
     traced = _fresh(tmp_path, "traced", "0", command)
     runs = [_fresh(tmp_path, "exported", cache, command)]
     assert len(list((tmp_path / "cache" / "programs").glob("*.jaxprogram"))) == programs
     runs.append(_fresh(tmp_path, "loaded", cache, command))
+    runs.append(_fresh(tmp_path, "shipped", str(tmp_path / "fresh"), command, shipped=True))
+    copied = {p.name for p in (tmp_path / "fresh" / "programs").glob("*.jaxprogram")}
+    assert copied <= {p.name for p in SHIPPED.glob("*.jaxprogram")}, "a program was traced"
     return traced, runs
 
 
