@@ -12,7 +12,7 @@ float64, compile excluded, ``min(timeit.repeat)`` around ``jax.block_until_ready
    beats=N)``) over batch sizes B: compile time, wall time and process CPU time of a steady
    call, beats per second (wall) and per CPU-second, against the issue's 100,000 beats/s;
 2. where the time goes, per member and beat, at B = 1024: the same beats built from public
-   pieces (``cardiosoft.solve.periodic_beats`` on ``cardiosoft.scene_circuit``): the solver's
+   pieces (``cardiosoft.periodic.periodic_beats`` on ``cardiosoft.scene_circuit``): the solver's
    steps alone (each beat's end state), then with the last beat integrated once more with its
    401 samples, signals and metrics (what ``save="metrics"`` does); one vector-field
    evaluation;
@@ -58,7 +58,7 @@ import cardiosoft  # noqa: E402
 from cardiosoft import load_pump, load_scene, scene_circuit, solve_beats  # noqa: E402
 from cardiosoft.batch import PULL_SAMPLES, SAMPLES_PER_BEAT, default_config  # noqa: E402
 from cardiosoft.metrics import beat_metrics  # noqa: E402
-from cardiosoft.solve import periodic_beats  # noqa: E402
+from cardiosoft.periodic import periodic_beats  # noqa: E402
 from cardiosoft.units import ml, mmHg  # noqa: E402
 
 SCENE = "bench-dynamic"

@@ -24,7 +24,7 @@ and integrates beat after beat from rest until the cycle-to-cycle change of the 
 the scene's ``steady_tol`` (or exactly ``beats`` beats), every member at its own pace, in one
 jitted, ``vmap``-ed call sharded over ``jax.devices()``; a large batch runs as a queue on fewer
 lanes, so that a member slow to settle does not hold the others
-(:func:`cardiosoft.solve.periodic_beats_batch`). Numbers are array leaves: a new design,
+(:func:`cardiosoft.periodic.periodic_beats_batch`). Numbers are array leaves: a new design,
 afterload, rate or tolerance does not recompile; a new batch size, effect or save mode does.
 
 **Ensembles.** A ``pump`` whose fitted array leaves carry one leading axis of S draws (a
@@ -98,11 +98,12 @@ from cardiosoft.circuit import (
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
 from cardiosoft.metrics import beat_metrics, trapezoid
 from cardiosoft.network.bench import ENGINES, BenchNetwork
+from cardiosoft.periodic import BeatProblem, periodic_beats_batch
 from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.scene import RANGES, Scene, load_scene
 from cardiosoft.shooting import orbit_beat, shoot_periodic
-from cardiosoft.solve import BeatProblem, SolverConfig, periodic_beats_batch, preset
+from cardiosoft.solve import SolverConfig, preset
 from cardiosoft.static import column_stiffness, static_strokes
 from cardiosoft.units import RHO_WATER, G, bpm, mmHg
 
@@ -345,7 +346,7 @@ def _solve(
             )
         return out
 
-    if steady == "beats":  # every member at its own pace (solve.periodic_beats_batch)
+    if steady == "beats":  # every member at its own pace (periodic.periodic_beats_batch)
         out = periodic_beats_batch(problem, members, max_beats=max_beats, tol=tol, config=config)
     else:
         out = jax.vmap(orbit_or_shooting)(members)

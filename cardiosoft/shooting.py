@@ -1,6 +1,7 @@
 """The periodic steady state by Newton shooting on the one-beat map, and the orbit's implicit
 derivative: the beats themselves are integrated by :mod:`cardiosoft.solve` (the one module that
-calls ``diffrax.diffeqsolve``); this module only asks it for one beat at a time.
+calls ``diffrax.diffeqsolve``) through :mod:`cardiosoft.periodic`'s beat; this module only asks
+for one beat at a time.
 
 :func:`shoot_periodic` finds the periodic state of a scene's vector field (``steady="shooting"``
 of :func:`cardiosoft.batch.solve_beats`); :func:`orbit_beat` integrates one beat from a periodic
@@ -17,19 +18,17 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from cardiosoft.solve import (
+from cardiosoft.periodic import (
     ACCUMULATORS,
     PERIODIC_SCALES,
-    SUCCESSFUL,
     Beats,
-    SolverConfig,
     _cycle_residual,
     _finite_or_failed,
     _one_beat,
     _phases,
     periodic_beats,
-    preset,
 )
+from cardiosoft.solve import SUCCESSFUL, SolverConfig, preset
 
 __all__ = ["orbit_beat", "shoot_periodic"]
 

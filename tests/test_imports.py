@@ -441,3 +441,16 @@ def test_every_kind_of_scene_answers_every_question():
     for kind, namespace in scene_tools.TOOLS.items():
         missing = sorted(n for n in asked if not callable(getattr(namespace, n, None)))
         assert not missing, f"{kind.__name__}'s {namespace.__name__} lacks {missing}"
+
+
+MAX_MODULE_LINES = 600
+"""Issue #40: no module over 600 lines; one that grows past it splits by concern (solve.py's
+beats to the periodic steady state became periodic.py at 671)."""
+
+
+def test_no_module_is_over_600_lines():
+    lines = {p.relative_to(ROOT).as_posix(): len(p.read_text().splitlines())
+             for p in PACKAGE.rglob("*.py")}  # fmt: skip
+    assert len(lines) > 50, "the package's modules were not found"
+    longer = {name: n for name, n in lines.items() if n > MAX_MODULE_LINES}
+    assert not longer, f"modules over {MAX_MODULE_LINES} lines: {longer}"

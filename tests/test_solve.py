@@ -101,7 +101,8 @@ def test_the_step_cap_can_be_lifted_and_then_pulses_are_lost():
 GUARD = """
 import jax, jax.numpy as jnp
 jax.config.update("jax_enable_x64", True)
-from cardiosoft.solve import SUCCESSFUL, periodic_beats
+from cardiosoft.periodic import periodic_beats
+from cardiosoft.solve import SUCCESSFUL
 
 field = lambda t, y, args: {"volume": -y["volume"] + 1e-6 * jnp.sin(2 * jnp.pi * t)}
 
@@ -221,7 +222,7 @@ def test_a_queued_batch_gives_each_member_the_beats_it_gets_alone():
     ``periodic_beats`` on that member alone (the side-by-side batch, a second implementation),
     and its beat count the linear relaxation's own. Rates k from 0.02 to 4 per beat: some
     members settle in 4 beats, the slowest never within ``max_beats`` (reported so)."""
-    from cardiosoft.solve import BeatProblem, periodic_beats, periodic_beats_batch, queue_lanes
+    from cardiosoft.periodic import BeatProblem, periodic_beats, periodic_beats_batch, queue_lanes
 
     a, tol, max_beats = 1e-6, 1e-4, 80  # m^3 (1 ml), ml (the change's unit), beats
     ks = jnp.geomspace(4.0, 0.02, 40)[jnp.array([*range(0, 40, 2), *range(1, 40, 2)])]
@@ -258,7 +259,7 @@ SHARDED_QUEUE = """
 import json, jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
 from cardiosoft.beat_solution import shard
-from cardiosoft.solve import BeatProblem, periodic_beats_batch
+from cardiosoft.periodic import BeatProblem, periodic_beats_batch
 
 assert jax.device_count() == 2
 ks = shard(jnp.geomspace(4.0, 0.02, 80))
@@ -284,7 +285,7 @@ def test_a_batch_sharded_over_two_devices_gives_each_member_its_own_beats():
     import subprocess
     import sys
 
-    from cardiosoft.solve import BeatProblem, periodic_beats
+    from cardiosoft.periodic import BeatProblem, periodic_beats
 
     flags = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
     run = subprocess.run(

@@ -10,7 +10,7 @@ Three kinds of evidence, recomputed:
    closed forms, scipy second implementations, svZeroDSolver.
 
 All states are SI inside; differences of the final state are reported in the units of
-:data:`cardiosoft.solve.PERIODIC_SCALES` (ml, ml/s, mmHg).
+:data:`cardiosoft.periodic.PERIODIC_SCALES` (ml, ml/s, mmHg).
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ import jax.numpy as jnp
 
 import cardiosoft
 from cardiosoft.credibility.evidence import Check, Section, source_root
-from cardiosoft.solve import PERIODIC_SCALES, SolverConfig, in_phase, integrate, preset
+from cardiosoft.periodic import PERIODIC_SCALES, in_phase
+from cardiosoft.solve import SolverConfig, integrate, preset
 
 __all__ = ["code_verification", "convergence"]
 

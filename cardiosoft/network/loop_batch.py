@@ -41,16 +41,11 @@ from cardiosoft.ensemble import ensemble_size, flat_batch, unflatten
 from cardiosoft.metrics import trapezoid
 from cardiosoft.network.closed_loop import CHAMBERS, VESSELS, ClosedLoop
 from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
+from cardiosoft.periodic import BeatProblem, periodic_beats_batch
 from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.shooting import shoot_periodic
-from cardiosoft.solve import (
-    BeatProblem,
-    SolverConfig,
-    periodic_beats_batch,
-    preset,
-    ran_out_of_steps,
-)
+from cardiosoft.solve import SolverConfig, preset, ran_out_of_steps
 
 __all__ = [
     "LOOP_SAMPLES",
@@ -239,7 +234,7 @@ def _solve(
 
     if steady == "shooting":
         out = jax.vmap(shoot)(members)
-    else:  # every member at its own pace (solve.periodic_beats_batch)
+    else:  # every member at its own pace (periodic.periodic_beats_batch)
         out = periodic_beats_batch(problem, members, max_beats=max_beats, tol=tol, config=config)
     metrics, traces = jax.vmap(report)(members, out)
     return metrics, traces, out

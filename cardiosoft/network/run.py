@@ -18,16 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from cardiosoft.network.svzerod import Model
+from cardiosoft.periodic import periodic_beats
 from cardiosoft.program_store import stored_call
-from cardiosoft.solve import (
-    PRESETS,
-    SUCCESSFUL,
-    SolverConfig,
-    integrate,
-    periodic_beats,
-    preset,
-    result_code,
-)
+from cardiosoft.solve import PRESETS, SUCCESSFUL, SolverConfig, integrate, preset, result_code
 
 
 @dataclass(frozen=True)
@@ -321,7 +314,7 @@ def _until_caps_settle(model, x_end, run, dt, config, beat_steps):
 
 @eqx.filter_jit
 def _steady_beats(net, x0, period, jumps, config, max_beats):
-    """Beat after beat from ``x0`` (:func:`cardiosoft.solve.periodic_beats`) until two beats in a
+    """Beat after beat from ``x0`` (:func:`cardiosoft.periodic.periodic_beats`) until two beats in a
     row change no state by more than :data:`STEADY_TOLERANCE` times its tolerance
     (``config.atol``). Returns the state at the start of the last beat, the beats run (that one
     included), its change over that tolerance, and diffrax's result."""

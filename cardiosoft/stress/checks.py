@@ -357,7 +357,7 @@ class LoopView:
 def left_half_capacity(scene: LoopScene) -> float:
     """How much blood (m^3) the left half of the loop (pulmonary veins, left atrium, left
     ventricle, systemic arteries) can gain over a beat per unit of the beat's cycle change
-    (:data:`cardiosoft.solve.PERIODIC_SCALES`: a chamber's volume changes by at most that many
+    (:data:`cardiosoft.periodic.PERIODIC_SCALES`: a chamber's volume changes by at most that many
     ml, a vessel's pressure by that many mmHg, so its volume C p by C times that many mmHg)."""
     return 2 * ml + (scene.ar_sys.compliance + scene.ven_pul.compliance) * mmHg
 
