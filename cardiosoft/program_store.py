@@ -33,9 +33,10 @@ traces, exports and stores (0.5 s more than tracing alone).
   derivative) is stored as it is traced: its derivatives are part of the stored StableHLO,
   not taken of it. A call inside another trace (a derivative taken of a solve, design's
   programs calling ``solve_beats``) is part of that trace and never goes to the store.
-- :func:`stored_value` keeps a value a command computes eagerly before it solves, the same
-  every run of one input (an svZeroDSolver model's solving order: 0.9 s of its 3.3 s warm
-  run), as a JSON entry of the same format, keyed by the input's bytes.
+- :func:`stored_value` keeps a value computed before a solve, the same every run of one input
+  (an svZeroDSolver model's solving order: 0.9 s of its 3.3 s warm run; a design search's
+  coarse grid, the same for every target on one scene), as a JSON entry of the same format,
+  keyed by the input's bytes, and in the process itself.
 - Programs shipped with the package (:data:`SHIPPED`, written by ``tools/ship_programs.py``):
   where the store has no entry for a key, a shipped entry of that key is copied into it, so
   that a fresh machine's first run of the main job loads its programs instead of tracing them
@@ -63,8 +64,19 @@ from importlib import metadata
 from pathlib import Path
 
 __all__ = [
-    "FORMAT", "SHIPPED", "STORE_LIMIT_BYTES", "StoredLowering", "output_layout", "program_key",
-    "prune", "read_header", "sources_digest", "stored_call", "stored_lowering", "stored_value",
+    "FORMAT",
+    "SHIPPED",
+    "STORE_LIMIT_BYTES",
+    "VALUES_KEPT",
+    "StoredLowering",
+    "output_layout",
+    "program_key",
+    "prune",
+    "read_header",
+    "sources_digest",
+    "stored_call",
+    "stored_lowering",
+    "stored_value",
     "use_program_store",
 ]  # fmt: skip
 
@@ -77,8 +89,10 @@ STORE_LIMIT_BYTES = 256 * 2**20
 SHIPPED = Path(__file__).resolve().parent / "programs"
 """The programs shipped with the package: the main job's (``tools/ship_programs.py``)."""
 
-# this process's store, the shipped entries it may copy, and its programs by key
-_state = {"folder": None, "shipped": None, "loaded": {}}
+# this process's store, the shipped entries it may copy, its programs and values by key
+_state = {"folder": None, "shipped": None, "loaded": {}, "values": {}}
+VALUES_KEPT = 16
+"""The most values :func:`stored_value` keeps in a process (the least recently computed go)."""
 
 
 def use_program_store(folder: Path | None, shipped: Path | None = None) -> None:
@@ -87,6 +101,7 @@ def use_program_store(folder: Path | None, shipped: Path | None = None) -> None:
     _state["folder"] = None if folder is None else Path(folder)
     _state["shipped"] = None if shipped is None else Path(shipped)
     _state["loaded"] = {}
+    _state["values"] = {}
 
 
 @functools.cache
@@ -392,13 +407,12 @@ def _lowering(fn, keywords, key, static, tree, leaves) -> StoredLowering | None:
 
 def stored_value(name: str, material, compute, encode, decode):
     """``compute()``, the value of ``material`` (arrays and static values, whose bytes and
-    ``repr`` key it), kept in this process's store beside its programs: what a command
-    computes eagerly before it solves, the same every run of one input (the solving order of
-    an svZeroDSolver model's nodes). ``encode`` makes the value JSON-ready and ``decode``
-    takes it back (``decode(encode(v))`` must equal ``v``); an entry that is missing, stale or
-    corrupt, or does not decode, is computed anew. Without a store, ``compute()``."""
-    if _state["folder"] is None:
-        return compute()
+    ``repr`` key it), kept in this process (the last :data:`VALUES_KEPT`) and in its store
+    beside its programs: what a command computes before it solves, the same every run of one
+    input (the solving order of an svZeroDSolver model's nodes, a design search's coarse
+    grid). ``encode`` makes the value JSON-ready and ``decode`` takes it back
+    (``decode(encode(v))`` must equal ``v``); an entry that is missing, stale or corrupt, or
+    does not decode, is computed anew."""
     import equinox as eqx
     import jax
     import numpy as np
@@ -413,6 +427,17 @@ def stored_value(name: str, material, compute, encode, decode):
         "x64": bool(jax.config.jax_enable_x64), "versions": _versions(),
     }  # fmt: skip
     key = hashlib.sha256(json.dumps(described, sort_keys=True).encode()).hexdigest()
+    values = _state["values"]
+    if key not in values:
+        values[key] = _value_from_store(key, compute, encode, decode)
+        while len(values) > VALUES_KEPT:
+            values.pop(next(iter(values)))
+    return values[key]
+
+
+def _value_from_store(key: str, compute, encode, decode):
+    if _state["folder"] is None:
+        return compute()
     path = _state["folder"] / f"{key}{SUFFIX}"
     entry = _stored_entry(path, key, load=lambda raw: raw)
     if entry is not None:

@@ -153,6 +153,28 @@ def test_the_reported_stroke_volumes_are_those_of_run(recovered, pump):
         assert t.peak_force_N == pytest.approx(m.metrics["peak_force"], rel=1e-9)
 
 
+def test_a_search_for_other_targets_starts_from_the_same_grid(recovered, pump, known_svs):
+    """The coarse grid's evaluations depend on the scene, the design space, the heads and the
+    rates, not on the target values: a later search of another target starts from the grid
+    the first evaluated (in a command, from its store across processes:
+    ``program_store.stored_value``), and finds the same design for the same targets."""
+    lines = []
+    again = design.optimise(
+        "bench-dynamic", target_sv=known_svs, afterload=HEADS, bpm=BPM, pump=pump,
+        progress=lines.append,
+    )  # fmt: skip
+    grid = [line for line in lines if line.startswith("grid:")]
+    assert len(grid) == 1 and "kept from an earlier search" in grid[0], lines
+    assert (again.omega, again.shortening) == (recovered.omega, recovered.shortening)
+    other = [sv + 1.0 for sv in known_svs]
+    lines.clear()
+    design.optimise(
+        "bench-dynamic", target_sv=other, afterload=HEADS, bpm=BPM, pump=pump, max_rounds=1,
+        progress=lines.append,
+    )  # fmt: skip
+    assert "kept from an earlier search" in next(x for x in lines if x.startswith("grid:"))
+
+
 def test_unreachable_target_returns_the_closest_design_and_the_range(pump):
     r = design.optimise(
         "bench-dynamic", target_sv=250.0, afterload=HEADS, bpm=BPM, pump=pump, max_rounds=15

@@ -16,6 +16,7 @@ from cardiosoft.design import cli
 from cardiosoft.design import loop as design_loop
 from cardiosoft.design.loop import CO_WEIGHT, PRESSURE_WEIGHT, loop_free, optimise_loop
 from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.program_store import use_program_store
 from cardiosoft.scene import load_scene
 from cardiosoft.units import mmHg
 
@@ -84,6 +85,24 @@ def test_an_unreachable_output_is_reported_with_the_most_seen():
     assert r.design["lv.shortening"] > 0.64
     assert co.value == pytest.approx(co.seen[1], abs=1e-6)
     assert any(f.startswith("cardiac output: the highest over") for f in r.flags)
+
+
+def test_a_question_of_other_targets_starts_from_the_kept_grid():
+    """The grid's orbits depend on the scene, the free variables, the start and the
+    surrogate, not on the targets: a question of other targets starts from them (a command's
+    from its store, across processes). Its search is the one it would have made with the grid
+    solved again: the same design and the same designs seen."""
+    question = dict(target_co=4.0, free=["lv.shortening"], start={"lv.shortening": 0.45})
+    optimise_loop("soft-lv", **{**question, "target_co": 3.0})  # evaluates the grid
+    lines = []
+    kept = optimise_loop("soft-lv", **question, progress=lines.append)
+    assert "the grid's orbits kept from an earlier search" in lines
+    use_program_store(None)  # what a new process without a store knows: nothing
+    lines.clear()
+    solved = optimise_loop("soft-lv", **question, progress=lines.append)
+    assert "the grid's orbits kept from an earlier search" not in lines
+    assert kept.design == solved.design
+    assert [t.seen for t in kept.targets] == [t.seen for t in solved.targets]
 
 
 def test_command_line_writes_the_design_and_flags_what_it_cannot_reach(tmp_path, capsys):

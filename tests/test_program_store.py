@@ -242,10 +242,12 @@ def _stored_runs(tmp_path, command: list[str], programs: int) -> tuple[Path, lis
     cache = str(tmp_path / "cache")
     traced = _fresh(tmp_path, "traced", "0", command)
     runs = [_fresh(tmp_path, "exported", cache, command)]
-    assert len(list((tmp_path / "cache" / "programs").glob("*.jaxprogram"))) == programs
+    entries = (tmp_path / "cache" / "programs").glob("*.jaxprogram")
+    assert [read_header(p)["kind"] for p in entries].count("program") == programs
     runs.append(_fresh(tmp_path, "loaded", cache, command))
     runs.append(_fresh(tmp_path, "shipped", str(tmp_path / "fresh"), command, shipped=True))
-    copied = {p.name for p in (tmp_path / "fresh" / "programs").glob("*.jaxprogram")}
+    copied = {p.name for p in (tmp_path / "fresh" / "programs").glob("*.jaxprogram")
+              if read_header(p)["kind"] == "program"}  # fmt: skip
     assert copied <= {p.name for p in SHIPPED.glob("*.jaxprogram")}, "a program was traced"
     return traced, runs
 
@@ -277,11 +279,14 @@ def test_the_main_job_loads_its_programs_and_answers_as_the_traced_ones(tmp_path
 @pytest.mark.slow
 def test_a_design_loads_its_programs_and_answers_as_the_traced_one(tmp_path):
     """The README's design question: the search's two programs (the orbits and their
-    implicit derivatives) and the verifying run's come from the store. The same programs give
-    the same search: the design and its SVs agree to 1e-9 relative (round-off carried through
-    a few dozen least-squares steps)."""
+    implicit derivatives) and the verifying run's come from the store, and so does the coarse
+    grid's evaluation (a value entry). The same programs give the same search: the design and
+    its SVs agree to 1e-9 relative (round-off carried through a few dozen least-squares
+    steps)."""
     question = ["--target-sv", "70", "--afterload", "90", "--bpm", "60"]
     traced, runs = _stored_runs(tmp_path, ["cardiosoft.design", *question], programs=4)
+    kinds = [read_header(p)["kind"] for p in (tmp_path / "cache" / "programs").iterdir()]
+    assert kinds.count("value") == 1, kinds  # the grid, read back by the "loaded" run
     want = json.loads((traced / "design.json").read_text())
     for out in runs:
         got = json.loads((out / "design.json").read_text())

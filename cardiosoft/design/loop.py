@@ -58,6 +58,7 @@ import numpy as np
 from cardiosoft._validate import check_range
 from cardiosoft.network.loop_batch import SIDES, solve_loop
 from cardiosoft.network.loop_scene import LoopScene, number_key
+from cardiosoft.program_store import stored_value
 from cardiosoft.scene import RANGES, load_scene
 from cardiosoft.scene_tools import check_supported
 from cardiosoft.units import ml, mmHg
@@ -275,11 +276,21 @@ class _Evaluator:
             "rap": np.asarray(m.right.atrial_mean) / mmHg,
         }
         ok = np.asarray(out.succeeded) & np.asarray(out.steady)
-        for i in np.flatnonzero(ok[:n]):
+        observed = {k: np.where(ok, v, np.nan)[:n] for k, v in observed.items()}
+        self.keep(xs, observed, ok[:n])
+        self.count += n
+        return out, observed
+
+    def keep(self, xs, observed: dict, steady=None) -> None:
+        """Keep the ``steady`` orbits (default: the finite rows of ``observed``) at points
+        ``xs``: the designs seen, from which a target out of reach is explained
+        (:func:`_limits`)."""
+        vals = self.values(xs)
+        if steady is None:
+            steady = np.all([np.isfinite(v) for v in observed.values()], axis=0)
+        for i in np.flatnonzero(steady):
             design = {p: float(vals[i, j]) for j, p in enumerate(self.free)}
             self.points.append((design, {k: float(v[i]) for k, v in observed.items()}))
-        self.count += n
-        return out, {k: np.where(ok, v, np.nan)[:n] for k, v in observed.items()}
 
 
 def _residuals(observed: dict, targets: dict) -> np.ndarray:
@@ -292,20 +303,36 @@ def _levels(d: int) -> tuple[float, ...]:
     return GRID_LEVELS if len(GRID_LEVELS) ** d <= GRID_MAX else GRID_LEVELS_MANY
 
 
-def _grid(ev: _Evaluator, start_x, targets) -> np.ndarray:
-    """The grid's best point (least sum of squared residuals) in the unit box."""
-    points = [np.asarray(start_x)]
-    points += [np.array(p) for p in itertools.product(_levels(len(ev.free)), repeat=len(ev.free))]
-    best, best_cost = points[0], math.inf
-    for i in range(0, len(points), ev.batch):
-        chunk = np.array(points[i : i + ev.batch])
-        _, observed = ev.solve(chunk)
-        cost = np.sum(_residuals(observed, targets) ** 2, axis=-1)
-        cost = np.where(np.isfinite(cost), cost, math.inf)
-        j = int(np.argmin(cost))
-        if cost[j] < best_cost:
-            best, best_cost = chunk[j], cost[j]
-    return best
+def _grid(ev: _Evaluator, start_x, targets) -> tuple[np.ndarray, bool]:
+    """The grid's best point (least sum of squared residuals) in the unit box, and whether the
+    grid's orbits were kept from an earlier search. They depend on the scene, the free
+    variables, the start and the surrogate, not on the targets: a later question of other
+    targets starts from them, in this process and, in a command's, from its store
+    (:func:`cardiosoft.program_store.stored_value`; a quarter of ``tah``'s warm design)."""
+    levels = itertools.product(_levels(len(ev.free)), repeat=len(ev.free))
+    points = np.array([np.asarray(start_x), *levels])
+    computed = []
+
+    def compute() -> dict:
+        computed.append(True)
+        calls = [ev.solve(points[i : i + ev.batch])[1] for i in range(0, len(points), ev.batch)]
+        return {k: np.concatenate([c[k] for c in calls]) for k in calls[0]}
+
+    material = (ev.scene, ev.free, ev.pump, points, GUESS_BEATS, MAX_NEWTON)
+    observed = stored_value("closed-loop design grid", material, compute, _encode, _decode)
+    if not computed:
+        ev.keep(points, observed)
+    cost = np.sum(_residuals(observed, targets) ** 2, axis=-1)
+    cost = np.where(np.isfinite(cost), cost, math.inf)
+    return points[int(np.argmin(cost))], not computed
+
+
+def _encode(observed: dict) -> dict:
+    return {k: v.tolist() for k, v in observed.items()}
+
+
+def _decode(observed: dict) -> dict:
+    return {k: np.array(v, dtype=float) for k, v in observed.items()}
 
 
 def _refine(ev: _Evaluator, x0, targets, max_evaluations: int):
@@ -434,7 +461,9 @@ def optimise_loop(
         f"{scene.name}: grid of {len(_levels(len(free))) ** len(free) + 1} designs, "
         f"{ev.batch} per call (compiling first) ..."
     )
-    x = _grid(ev, start_x, targets)
+    x, kept = _grid(ev, start_x, targets)
+    if kept:
+        say("the grid's orbits kept from an earlier search")
     say(f"refining (trust-region least squares, {ev.batch} members a call) ...")
     x, solved = _refine(ev, x, targets, max_evaluations)
     # the answer's orbit is that of the call that evaluated it (its first row), not solved again

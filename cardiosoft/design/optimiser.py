@@ -12,7 +12,6 @@ import math
 import threading
 import time
 
-import equinox as eqx
 import numpy as np
 
 from cardiosoft.design.figure import sv_map
@@ -36,6 +35,7 @@ from cardiosoft.design.search import (
     steady_method,
 )
 from cardiosoft.design.verify import pareto_trace, target_sv_of, verify_design
+from cardiosoft.program_store import stored_value
 from cardiosoft.pump import PumpSurrogate, load
 from cardiosoft.solve import PRESETS
 
@@ -83,13 +83,6 @@ class _Prewarm(threading.Thread):
         self.seconds = time.perf_counter() - begin
 
 
-_GRIDS: dict = {}
-"""The coarse grid's evaluations of the last few problems, by :func:`_grid_key`: a further
-target of the same scene, design space, afterloads and rates (only the targets, the objective or
-the tolerance differ) starts from them instead of evaluating the grid again."""
-_GRIDS_KEPT = 4
-
-
 def _grid_key(problem: Problem, accuracy, steady) -> tuple:
     """What the grid's evaluations depend on (everything but the targets' values)."""
     rates = tuple(problem.base["bpm"] if t.bpm is None else t.bpm for t in problem.targets)
@@ -106,19 +99,29 @@ def _grid_key(problem: Problem, accuracy, steady) -> tuple:
 
 
 def _evaluate_grid(evaluate, z_grid, key, pump):
-    """(values, jac, ok) of the grid: evaluated in batches of REFINE, or those kept for ``key``
-    (with a surrogate of the same numbers)."""
-    kept = _GRIDS.get(key)
-    if kept is not None and np.array_equal(kept[1], z_grid):
-        same = kept[0] is pump or bool(eqx.tree_equal(kept[0], pump))
-        if same:
-            return kept[2], True
-    grid_evals = [evaluate(z_grid[k : k + REFINE]) for k in range(0, GRID, REFINE)]
-    evals = tuple(np.concatenate([e[i] for e in grid_evals]) for i in range(3))
-    _GRIDS[key] = (pump, z_grid, evals)
-    while len(_GRIDS) > _GRIDS_KEPT:
-        _GRIDS.pop(next(iter(_GRIDS)))
-    return evals, False
+    """((values, jac, ok) of the grid, whether they were kept from an earlier search): evaluated
+    in batches of REFINE, once per :func:`_grid_key` and surrogate. A further target of the same
+    scene, design space, afterloads and rates (only the targets, the objective or the tolerance
+    differ) starts from them, in this process and, in a command's, from its store
+    (:func:`cardiosoft.program_store.stored_value`): the grid is half of a warm design run."""
+    computed = []
+
+    def compute():
+        computed.append(True)
+        grid_evals = [evaluate(z_grid[k : k + REFINE]) for k in range(0, GRID, REFINE)]
+        return tuple(np.concatenate([e[i] for e in grid_evals]) for i in range(3))
+
+    evals = stored_value("design grid", (key, z_grid, pump), compute, _encode, _decode)
+    return evals, not computed
+
+
+def _encode(arrays) -> list:
+    return [{"dtype": str(a.dtype), "shape": list(a.shape), "data": a.ravel().tolist()}
+            for a in arrays]  # fmt: skip
+
+
+def _decode(items) -> tuple:
+    return tuple(np.array(x["data"], dtype=x["dtype"]).reshape(x["shape"]) for x in items)
 
 
 def _grid_search(problem: Problem, evaluate, record: SearchRecord, z_grid, say, t0, key, pump):
@@ -133,7 +136,7 @@ def _grid_search(problem: Problem, evaluate, record: SearchRecord, z_grid, say, 
     n_ok = int(ok.all(axis=1).sum())
     best_grid = np.min(np.where(ok.all(axis=1), np.max(np.abs(r), axis=1), np.inf))
     say(
-        f"grid: {GRID} candidates ({n_ok} solved{', kept from the last search' * reused}), "
+        f"grid: {GRID} candidates ({n_ok} solved{', kept from an earlier search' * reused}), "
         f"best max |residual| {best_grid:.3g} ml; compile {evaluate.compile_s:.1f} s, grid "
         f"{grid_s:.2f} s"
     )
