@@ -4,7 +4,7 @@ shipped scene.
 
     python benchmarks/startup.py [--repeat N]                  # the main job: about 2 minutes
     python benchmarks/startup.py --commands main uncertainty design-bench design-lv \
-        design-rv design-tah model --repeat 1                  # about 25 minutes on 2 cores
+        design-rv design-soft-lv design-soft-rv design-tah model --repeat 1   # about 15 minutes
 
 The solve itself takes about 30 ms; the rest of a command is start-up: importing JAX and
 diffrax, tracing and compiling its programs. This script prints
@@ -46,6 +46,7 @@ IMPORT_TARGET_S = 0.8
 SOLVE_IMPORTS = "import cardiosoft.experiment"
 """What the main job imports before it solves (``cardiosoft.run`` and everything under it)."""
 DESIGN = ["cardiosoft.design", "--target-sv"]
+LOOP_DESIGN = ["cardiosoft.design", "--scene"]
 HEART_CASE = REPO / "tests" / "data" / "svzerod" / "closedLoopHeart_singleVessel.json"
 """svZeroDSolver's closed-loop heart case: the anchor (issue #41), run by both solvers."""
 SVZEROD = f"import json, svzerod; svzerod.simulate(json.load(open({str(HEART_CASE)!r})))"
@@ -56,6 +57,8 @@ COMMANDS = {
     "design-bench": ([*DESIGN, "70", "--afterload", "90", "--bpm", "60"], 3.0, 15.0),
     "design-lv": ([*DESIGN, "40", "--scene", "lv-systemic", "--bpm", "72"], 3.0, 15.0),
     "design-rv": ([*DESIGN, "50", "--scene", "rv-pulmonary"], 3.0, 15.0),
+    "design-soft-lv": ([*LOOP_DESIGN, "soft-lv", "--target-co", "4.5"], 3.0, 15.0),
+    "design-soft-rv": ([*LOOP_DESIGN, "soft-rv", "--target-co", "4.5"], 3.0, 15.0),
     "model": (["cardiosoft.simulate", "--scene", str(HEART_CASE)], None, None),
     "design-tah": (
         ["cardiosoft.design", "--scene", "tah", "--target-co", "5", "--lap", "8", "--rap", "5"],

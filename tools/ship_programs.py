@@ -33,7 +33,10 @@ from startup import COMMANDS as TIMED  # noqa: E402
 
 from cardiosoft.program_store import SHIPPED, SUFFIX, read_header  # noqa: E402
 
-SHIPPED_COMMANDS = ("main", "uncertainty", "design-bench", "design-lv", "design-rv", "design-tah")
+SHIPPED_COMMANDS = (
+    "main", "uncertainty", "design-bench", "design-lv", "design-rv", "design-soft-lv",
+    "design-soft-rv", "design-tah",
+)  # fmt: skip
 """What is shipped: the programs of these commands of ``benchmarks/startup.py``."""
 COMMANDS = tuple(tuple(TIMED[name][0]) for name in SHIPPED_COMMANDS)
 
