@@ -549,7 +549,11 @@ def test_member_the_explicit_solver_runs_out_on_is_solved_implicitly():
     of Tsit5's 16384 steps a beat (issue #40: 19 such members in the hard-case suite). By
     default solve_loop solves such a member again with the implicit Kvaerno5; the member
     beside it, at the scene's own design, keeps its explicit answer. With the explicit config
-    given explicitly, the stiff member reports that it ran out of steps."""
+    given explicitly, the stiff member reports that it ran out of steps. The stiff members
+    are solved in a batch of the call's own size (two): a call with both members stiff
+    compiles no new program (each would take about a minute), and its members, the same
+    design twice, get the first call's stiff answer."""
+    import logging
 
     from cardiosoft.network.loop_batch import loop_config, solve_loop
 
@@ -572,6 +576,24 @@ def test_member_the_explicit_solver_runs_out_on_is_solved_implicitly():
         left[1], np.asarray(explicit.metrics.left.cardiac_output)[1], rtol=1e-12
     )
     assert np.isfinite(left[0]) and left[0] > 0
+
+    stiff = {k: [v[0], v[0]] for k, v in members.items()}
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logging.getLogger("jax").addHandler(handler)
+    try:
+        with jax.log_compiles():
+            both = solve_loop(scene, members=stiff, save="metrics")
+    finally:
+        logging.getLogger("jax").removeHandler(handler)
+    compiled = [r.getMessage() for r in records if r.getMessage().startswith("Compiling")]
+    assert not [m for m in compiled if "_solve" in m], compiled
+    assert bool(np.all(np.asarray(both.result == SUCCESSFUL)))
+    # the same program, the same member: equal to the answer beside a member solved explicitly
+    np.testing.assert_allclose(
+        np.asarray(both.metrics.left.cardiac_output), [left[0], left[0]], rtol=1e-12
+    )
 
 
 def one_draw(pump, draw: int):

@@ -320,8 +320,9 @@ def _grid(ev: _Evaluator, start_x, targets) -> tuple[np.ndarray, bool]:
 
     material = (ev.scene, ev.free, ev.pump, points, GUESS_BEATS, MAX_NEWTON)
     observed = stored_value("closed-loop design grid", material, compute, _encode, _decode)
-    if not computed:
+    if not computed:  # evaluated all the same, by an earlier search: seen and counted
         ev.keep(points, observed)
+        ev.count += len(points)
     cost = np.sum(_residuals(observed, targets) ** 2, axis=-1)
     cost = np.where(np.isfinite(cost), cost, math.inf)
     return points[int(np.argmin(cost))], not computed

@@ -50,12 +50,14 @@ from cardiosoft.solve import SolverConfig, preset, ran_out_of_steps
 __all__ = [
     "LOOP_SAMPLES",
     "SIDES",
+    "STIFF_SIDE_BY_SIDE",
     "LoopMetrics",
     "SideMetrics",
     "loop_config",
     "loop_members",
     "loop_metrics",
     "solve_loop",
+    "stiff_batch_size",
     "stiff_loop_config",
 ]
 
@@ -306,7 +308,8 @@ def solve_loop(
       the shape ``(S, M, ...)`` (:mod:`cardiosoft.batch`'s ensembles).
     - ``config``: a :class:`~cardiosoft.solve.SolverConfig`; default the scene's accuracy
       preset with Tsit5 in forward mode (:func:`loop_config`), and for the members that run
-      out of its steps the implicit Kvaerno5 (:func:`stiff_loop_config`), solved again.
+      out of its steps the implicit Kvaerno5 (:func:`stiff_loop_config`), solved again (in a
+      batch of :func:`stiff_batch_size`).
     - ``guess_beats``: with ``steady="shooting"``, the beats from the scene's initial state
       before Newton starts (default :data:`~cardiosoft.beat_solution.GUESS_BEATS`). Far from the
       shipped designs a closed loop's slow venous mode needs more: from 5, Newton failed on 10
@@ -363,15 +366,35 @@ def solve_loop(
         )
 
     solved = solve(batch, config)
-    ran_out = np.flatnonzero(ran_out_of_steps(solved[2].result))
+    out_of_steps = ran_out_of_steps(solved[2].result)
+    ran_out = np.flatnonzero(out_of_steps)
     if chosen is None and ran_out.size:
         # the members (or draws) the explicit solver ran out of steps on are stiff: solve them
-        # again, implicitly
-        again = solve(jax.tree.map(lambda a: a[ran_out], batch), stiff_loop_config(scene))
+        # again, implicitly, repeated to a batch size that many counts share
+        picked = np.resize(ran_out, stiff_batch_size(ran_out.size, len(out_of_steps)))
+        again = solve(jax.tree.map(lambda a: a[picked], batch), stiff_loop_config(scene))
+        again = jax.tree.map(lambda b: jnp.asarray(b)[: ran_out.size], again)
         solved = jax.tree.map(lambda a, b: jnp.asarray(a).at[ran_out].set(b), solved, again)
     if size is not None:
         solved = unflatten(solved, size)
     return solution(scene, members, config, *solved, beats is not None)
+
+
+STIFF_SIDE_BY_SIDE = 8
+"""A batch of at most this many members solves its stiff ones again at its own size
+(:func:`stiff_batch_size`)."""
+
+
+def stiff_batch_size(stiff: int, members: int) -> int:
+    """How many members :func:`solve_loop` solves implicitly when ``stiff`` of its ``members``
+    ran out of the explicit solver's steps (the stiff ones repeated to that size). Each batch
+    size is a program to trace and compile: on ``tah`` near 180 bpm, 52-55 s each, where
+    solving one member takes 2.1 s and six 4.5 s. So a small batch (a design's calls, of 2-6
+    members) takes them at its own size, one program for any count, and a larger one at the
+    next power of two."""
+    if members <= STIFF_SIDE_BY_SIDE:
+        return members
+    return min(members, 1 << (stiff - 1).bit_length())
 
 
 def stiff_loop_config(scene: LoopScene) -> SolverConfig:
