@@ -39,7 +39,8 @@ traces, exports and stores (0.5 s more than tracing alone).
   keyed by the input's bytes, and in the process itself.
 - Programs shipped with the package (:data:`SHIPPED`, written by ``tools/ship_programs.py``):
   where the store has no entry for a key, a shipped entry of that key is copied into it, so
-  that a fresh machine's first run of the main job loads its programs instead of tracing them
+  that a fresh machine's first run of the main job (or of a shipped scene's design question)
+  loads its programs instead of tracing them
   (issue #41, item 2: tracing is 3.7 of the cold main job's 7.6 s). StableHLO is portable
   across CPUs; the executable is compiled on the machine, as before. An entry's header names
   the sources it was traced from (``sources``): an edit of cardiosoft makes every shipped entry
@@ -87,7 +88,8 @@ STORE_LIMIT_BYTES = 256 * 2**20
 """The most a store holds: about a thousand programs, every command's for several versions."""
 
 SHIPPED = Path(__file__).resolve().parent / "programs"
-"""The programs shipped with the package: the main job's (``tools/ship_programs.py``)."""
+"""The programs shipped with the package: the main job's, ``--uncertainty``'s and a design
+question's per shipped scene (``tools/ship_programs.py``)."""
 
 # this process's store, the shipped entries it may copy, its programs and values by key
 _state = {"folder": None, "shipped": None, "loaded": {}, "values": {}}

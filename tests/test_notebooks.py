@@ -45,7 +45,7 @@ NOTEBOOKS = nbexec.notebooks()
 SMOKE = {"accuracy"}
 """Executed with ``CARDIOSOFT_NOTEBOOK_SMOKE=1``: a subset of the stored computation."""
 SLOW = {"tables_fit", "fig10_bench", "accuracy", "design", "closed_loop", "uncertainty"}
-"""~40 s, ~40 s, ~2.5 min, ~5 min, ~10 min and ~2.5 min on 2 CPU cores; tables_fit's numbers
+"""~40 s, ~40 s, ~2.5 min, ~5 min, ~6 min and ~2.5 min on 2 CPU cores; tables_fit's numbers
 (Table I/II errors) are also pinned by tests/test_fit.py against the model card."""
 PROBES = {
     "fig7_apex_motion": ("anchor_dz_mm", "anchor_dalpha_deg", "cavity_ml"),

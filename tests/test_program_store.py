@@ -125,29 +125,26 @@ def test_pruning_deletes_the_least_recently_used_entries(store, monkeypatch):
     assert left not in written, "the write did not prune the store"
 
 
-def test_a_missing_entry_is_copied_from_the_shipped_programs_not_traced(tmp_path):
+def test_a_missing_entry_is_copied_from_the_shipped_programs_not_traced(store, tmp_path):
     """A fresh machine's store is empty: the package's program of the same key is copied into
     it and loaded; a damaged shipped entry is not trusted (the program is traced)."""
-    shipped, store = tmp_path / "shipped", tmp_path / "store"
-    use_program_store(shipped)  # the package's programs, exported from these sources
-    TRACED.clear()
+    shipped = store  # the package's programs, exported from these sources
     stored_call(_beat_like, NUMBERS, 2.0)
     (entry,) = shipped.glob("*.jaxprogram")
-    use_program_store(store, shipped)  # a new process on a fresh machine
+    fresh = tmp_path / "fresh"
+    use_program_store(fresh, shipped)  # a new process on a fresh machine
     out = stored_call(_beat_like, {"a": jnp.arange(3.0) + 1, "b": jnp.zeros(3)}, 2.0)
     assert TRACED == [2.0], "the shipped program was traced again"
     np.testing.assert_array_equal(out["y"], [2.0, 4.0, 6.0])
-    assert (store / entry.name).read_bytes() == entry.read_bytes()
+    assert (fresh / entry.name).read_bytes() == entry.read_bytes()
 
     raw = bytearray(entry.read_bytes())
     raw[-50] ^= 0xFF  # one byte of the shipped program flipped
     entry.write_bytes(bytes(raw))
-    fresh = tmp_path / "fresh"
-    use_program_store(fresh, shipped)
+    use_program_store(tmp_path / "another", shipped)
     out = stored_call(_beat_like, NUMBERS, 2.0)
     assert TRACED == [2.0, 2.0], "a damaged shipped entry was used"
     np.testing.assert_array_equal(out["y"], [1.0, 3.0, 5.0])
-    use_program_store(None)
 
 
 def test_the_shipped_programs_were_exported_from_these_sources():

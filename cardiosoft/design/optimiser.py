@@ -103,7 +103,7 @@ def _evaluate_grid(evaluate, z_grid, key, pump):
     in batches of REFINE, once per :func:`_grid_key` and surrogate. A further target of the same
     scene, design space, afterloads and rates (only the targets, the objective or the tolerance
     differ) starts from them, in this process and, in a command's, from its store
-    (:func:`cardiosoft.program_store.stored_value`): the grid is half of a warm design run."""
+    (:func:`cardiosoft.program_store.stored_value`; lv-systemic's warm design 4.2 -> 2.5 s)."""
     computed = []
 
     def compute():
