@@ -1,10 +1,11 @@
 """Write the programs shipped with the package (``cardiosoft/programs/``, issue #41, item 2).
 
-    python tools/ship_programs.py        # about 20 s a command on 2 cores
+    python tools/ship_programs.py        # about 2.5 minutes on 2 cores
 
 A fresh machine's first run of a command traces its programs: of the main job's cold 7.6 s,
 3.7 s. A program exported with ``jax.export`` is StableHLO, portable across CPUs, so the
-package can carry the main job's: a first run then copies them into its store
+package carries those of :data:`SHIPPED_COMMANDS` (the main job, ``--uncertainty``, a design
+question per shipped scene): a first run copies them into its store
 (:mod:`cardiosoft.program_store`) and only compiles them.
 
 Each command of :data:`COMMANDS` runs here in a fresh process with an empty cache folder and
@@ -25,9 +26,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
-
-sys.path.insert(0, str(REPO / "benchmarks"))
+sys.path[:0] = [str(REPO), str(REPO / "benchmarks")]  # cardiosoft, and what startup.py times
 
 from startup import COMMANDS as TIMED  # noqa: E402
 
