@@ -407,14 +407,26 @@ def _lowering(fn, keywords, key, static, tree, leaves) -> StoredLowering | None:
     return StoredLowering(layout, jax.jit(call).lower(*shapes), out_info)
 
 
-def stored_value(name: str, material, compute, encode, decode):
+def _arrays_to_json(value: dict) -> dict:
+    return {k: {"dtype": str(a.dtype), "shape": list(a.shape), "data": a.ravel().tolist()}
+            for k, a in value.items()}  # fmt: skip
+
+
+def _arrays_from_json(value: dict) -> dict:
+    import numpy as np
+
+    return {k: np.array(x["data"], dtype=x["dtype"]).reshape(x["shape"]) for k, x in value.items()}
+
+
+def stored_value(name: str, material, compute, encode=_arrays_to_json, decode=_arrays_from_json):
     """``compute()``, the value of ``material`` (arrays and static values, whose bytes and
     ``repr`` key it), kept in this process (the last :data:`VALUES_KEPT`) and in its store
     beside its programs: what a command computes before it solves, the same every run of one
     input (the solving order of an svZeroDSolver model's nodes, a design search's coarse
     grid). ``encode`` makes the value JSON-ready and ``decode`` takes it back
-    (``decode(encode(v))`` must equal ``v``); an entry that is missing, stale or corrupt, or
-    does not decode, is computed anew."""
+    (``decode(encode(v))`` must equal ``v``; by default the value is a dict of numpy arrays,
+    each kept exactly: float64 through Python's shortest round-trip repr); an entry that is
+    missing, stale or corrupt, or does not decode, is computed anew."""
     import equinox as eqx
     import jax
     import numpy as np

@@ -183,6 +183,29 @@ def test_a_stored_value_is_computed_once_per_input_and_never_trusted_damaged(sto
     assert _value(store, jnp.arange(3.0), calls) == {"sum": 3.0} and calls == [1, 1, 1]
 
 
+def test_a_dict_of_arrays_is_kept_exactly_by_default(store):
+    """stored_value's own codec (a design search's grid): every float64 to the last bit (NaN
+    too), and each array's dtype and shape, read back by a new process."""
+    value = {
+        "x": np.array([0.1, 1 / 3, np.nan, -2.5e-300]), "ok": np.array([[True, False]]),
+        "n": np.array([3, -1], dtype=np.int32),
+    }  # fmt: skip
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return value
+
+    stored_value("arrays", (jnp.arange(2.0), "its wiring"), compute)
+    use_program_store(store)  # a new process
+    got = stored_value("arrays", (jnp.arange(2.0), "its wiring"), compute)
+    assert calls == [1], "the value was computed again"
+    np.testing.assert_array_equal(got["x"], value["x"])
+    assert got["x"].dtype == np.float64
+    assert got["ok"].dtype == bool and got["ok"].tolist() == [[True, False]]
+    assert got["n"].dtype == np.int32 and got["n"].tolist() == [3, -1]
+
+
 def test_an_svzerod_models_solving_order_is_read_back_not_found_again(store, monkeypatch):
     """Reading a model orders its nodes (cardiosoft.network.ordering); a later process reading
     the same model takes the stored order, equal to the one found."""

@@ -319,21 +319,13 @@ def _grid(ev: _Evaluator, start_x, targets) -> tuple[np.ndarray, bool]:
         return {k: np.concatenate([c[k] for c in calls]) for k in calls[0]}
 
     material = (ev.scene, ev.free, ev.pump, points, GUESS_BEATS, MAX_NEWTON)
-    observed = stored_value("closed-loop design grid", material, compute, _encode, _decode)
+    observed = stored_value("closed-loop design grid", material, compute)
     if not computed:  # evaluated all the same, by an earlier search: seen and counted
         ev.keep(points, observed)
         ev.count += len(points)
     cost = np.sum(_residuals(observed, targets) ** 2, axis=-1)
     cost = np.where(np.isfinite(cost), cost, math.inf)
     return points[int(np.argmin(cost))], not computed
-
-
-def _encode(observed: dict) -> dict:
-    return {k: v.tolist() for k, v in observed.items()}
-
-
-def _decode(observed: dict) -> dict:
-    return {k: np.array(v, dtype=float) for k, v in observed.items()}
 
 
 def _refine(ev: _Evaluator, x0, targets, max_evaluations: int):

@@ -104,24 +104,16 @@ def _evaluate_grid(evaluate, z_grid, key, pump):
     scene, design space, afterloads and rates (only the targets, the objective or the tolerance
     differ) starts from them, in this process and, in a command's, from its store
     (:func:`cardiosoft.program_store.stored_value`; lv-systemic's warm design 4.2 -> 2.5 s)."""
+    names = ("values", "jac", "ok")
     computed = []
 
     def compute():
         computed.append(True)
         grid_evals = [evaluate(z_grid[k : k + REFINE]) for k in range(0, GRID, REFINE)]
-        return tuple(np.concatenate([e[i] for e in grid_evals]) for i in range(3))
+        return {n: np.concatenate([e[i] for e in grid_evals]) for i, n in enumerate(names)}
 
-    evals = stored_value("design grid", (key, z_grid, pump), compute, _encode, _decode)
-    return evals, not computed
-
-
-def _encode(arrays) -> list:
-    return [{"dtype": str(a.dtype), "shape": list(a.shape), "data": a.ravel().tolist()}
-            for a in arrays]  # fmt: skip
-
-
-def _decode(items) -> tuple:
-    return tuple(np.array(x["data"], dtype=x["dtype"]).reshape(x["shape"]) for x in items)
+    evals = stored_value("design grid", (key, z_grid, pump), compute)
+    return tuple(evals[n] for n in names), not computed
 
 
 def _grid_search(problem: Problem, evaluate, record: SearchRecord, z_grid, say, t0, key, pump):
