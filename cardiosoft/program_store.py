@@ -46,14 +46,6 @@ traces, exports and stores (0.5 s more than tracing alone).
   the sources it was traced from (``sources``): an edit of cardiosoft makes every shipped entry
   stale (never found, since the key holds that digest), and ``tests/test_program_store.py``
   says so until they are written again.
-- This machine's executables (issue #41: a warm process neither traces nor lowers): once a
-  stored program is compiled, the executable itself is kept in the store's folder
-  ``executables/`` (``jax.experimental.serialize_executable``), keyed by the program's key,
-  this CPU (:func:`machine_fingerprint`: an executable is compiled for its host's instruction
-  set, unlike StableHLO) and ``XLA_FLAGS``. A later process loads it and skips lowering the
-  program again and hashing it for JAX's compile cache: of a warm ``simulate --bpm 60``
-  (1.5 s) that was 0.4 s, of ``--uncertainty``'s 0.7 s. An executable that does not load is
-  compiled again from the program, never trusted; executables are never shipped.
 - The store keeps at most :data:`STORE_LIMIT_BYTES`: each edit of cardiosoft's sources or
   new version keys new entries (about 0.2 MB each), so writing one deletes the least recently
   used beyond the limit (a read marks an entry used). Deleting the folder is always safe.
@@ -69,8 +61,6 @@ import json
 import os
 import sys
 import tempfile
-import threading
-import zlib
 from importlib import metadata
 from pathlib import Path
 
@@ -80,7 +70,6 @@ __all__ = [
     "STORE_LIMIT_BYTES",
     "VALUES_KEPT",
     "StoredLowering",
-    "machine_fingerprint",
     "output_layout",
     "program_key",
     "prune",
@@ -98,9 +87,6 @@ SUFFIX = ".jaxprogram"
 STORE_LIMIT_BYTES = 256 * 2**20
 """The most a store holds: about a thousand programs, every command's for several versions."""
 
-EXECUTABLES = "executables"
-"""The store's sub-folder of this machine's compiled programs (module docstring), kept to
-:data:`STORE_LIMIT_BYTES` of its own."""
 SHIPPED = Path(__file__).resolve().parent / "programs"
 """The programs shipped with the package: the main job's, ``--uncertainty``'s and a design
 question's per shipped scene (``tools/ship_programs.py``)."""
@@ -137,26 +123,6 @@ def _versions() -> dict:
         **{name: metadata.version(name) for name in ("jax", "jaxlib", "diffrax", "equinox")},
         "python": sys.version.split()[0],
     }
-
-
-@functools.cache
-def machine_fingerprint() -> str:
-    """What an executable compiled here depends on beyond its program: the CPU's model and
-    instruction-set extensions (``/proc/cpuinfo`` where there is one; else the platform's
-    names) and ``XLA_FLAGS``. A store shared by machines of other CPUs (a home folder on a
-    cluster) keeps each machine's executables apart."""
-    import platform
-
-    described = [platform.machine(), platform.processor(), os.environ.get("XLA_FLAGS", "")]
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith(("model name", "flags", "Features", "CPU part")):
-                described.append(line)
-            elif not line.strip() and len(described) > 3:
-                break  # the first processor's lines describe them all
-    except OSError:
-        pass
-    return hashlib.sha256("\n".join(described).encode()).hexdigest()
 
 
 def _is_leaf_value(x) -> bool:
@@ -369,109 +335,25 @@ def _export(fn, keywords, static, tree, leaves):
 
 @dataclasses.dataclass(frozen=True)
 class StoredLowering:
-    """A stored program ready to compile for its arguments' shapes, as
-    ``jax.jit(fn).lower(...)`` is: :meth:`compile` (XLA's work, which a thread may do) gives a
-    function of the same arguments returning the same tree; :attr:`out_info` is that tree's
-    shapes and dtypes. ``lower`` lowers the program; ``executable``, where this machine keeps
-    its compiled form (None: not kept), and ``kept``, the entry read there (None: none)."""
+    """A stored program lowered for its arguments' shapes, as ``jax.jit(fn).lower(...)`` is:
+    :meth:`compile` (XLA's work, which a thread may do) gives a function of the same
+    arguments returning the same tree; :attr:`out_info` is that tree's shapes and dtypes."""
 
     layout: dict
+    lowered: object
     out_info: object
-    lower: object
-    executable: Path | None = None
-    kept: bytes | None = None
 
     def compile(self):
         import equinox as eqx
         import jax
 
-        compiled = None if self.kept is None else _load_executable(self.kept)
-        if compiled is None:
-            compiled, fresh = _compile(self.lower())
-            if fresh and self.executable is not None:
-                _save_executable(self.executable, self.layout, self.out_info, compiled)
+        compiled = self.lowered.compile()
 
         def call(*args):
             leaves = jax.tree.leaves(eqx.filter(args, _is_leaf_value))
             return _rebuild(self.layout, iter(compiled(*leaves)))
 
         return call
-
-
-_compiling = threading.local()  # the JAX events of the compile running on this thread
-CACHE_REQUEST = "/jax/compilation_cache/compile_requests_use_cache"
-CACHE_HIT = "/jax/compilation_cache/cache_hits"
-
-
-@functools.cache
-def _listen() -> None:
-    import jax
-
-    def heard(event, **_):
-        events = getattr(_compiling, "events", None)
-        if events is not None:
-            events.append(event)
-
-    jax.monitoring.register_event_listener(heard)
-
-
-def _compile(lowered):
-    """``lowered.compile()`` and whether XLA compiled it in this call. An executable that
-    JAX's compile cache gave back is not kept: serialised again it loses kernels (jaxlib
-    0.10.2: "Function wrapped_exponential not found" at the first run of ``--uncertainty``'s
-    ensemble). Where JAX's cache is on, only a compile that asked it and missed (its
-    monitoring events, heard on this thread) counts as fresh: events JAX might rename count as
-    not fresh."""
-    import jax
-
-    _listen()
-    _compiling.events = []
-    try:
-        compiled = lowered.compile()
-        events = _compiling.events
-    finally:
-        _compiling.events = None
-    if CACHE_HIT in events:
-        return compiled, False
-    cache_on = jax.config.jax_enable_compilation_cache and jax.config.jax_compilation_cache_dir
-    return compiled, CACHE_REQUEST in events or not cache_on
-
-
-def _executable_path(key: str) -> Path:
-    described = f"{key}:{machine_fingerprint()}"
-    name = hashlib.sha256(described.encode()).hexdigest()
-    return _state["folder"] / EXECUTABLES / f"{name}{SUFFIX}"
-
-
-def _save_executable(path: Path, layout, out_info, compiled) -> None:
-    """Keep ``compiled`` at ``path`` (a store's executables), beside the output's layout and
-    shapes; an executable that cannot be serialised is simply not kept."""
-    import pickle
-
-    import jax
-    from jax.experimental.serialize_executable import serialize
-
-    try:
-        payload = zlib.compress(pickle.dumps(serialize(compiled)), 1)
-    except Exception:  # an executable of a backend or program that does not serialise
-        return
-    shapes = [[list(a.shape), str(a.dtype)] for a in jax.tree.leaves(out_info)]
-    try:
-        _write(path, path.stem, {"layout": layout, "out": shapes}, payload, kind="executable")
-    except OSError as err:  # a store that cannot be written: this run goes on
-        print(f"warning: program store {path.parent}: {err}", file=sys.stderr)
-
-
-def _load_executable(payload: bytes):
-    """The compiled program kept in ``payload``, or None where it does not load."""
-    import pickle
-
-    from jax.experimental.serialize_executable import deserialize_and_load
-
-    try:
-        return deserialize_and_load(*pickle.loads(zlib.decompress(payload)))
-    except Exception:  # kept by another jaxlib or damaged past its digest: compiled again
-        return None
 
 
 def _stores(args) -> bool:
@@ -501,33 +383,6 @@ def stored_lowering(fn, *args, **keywords) -> StoredLowering | None:
 
 def _lowering(fn, keywords, key, static, tree, leaves) -> StoredLowering | None:
     import jax
-    import numpy as np
-
-    executable = _executable_path(key)
-    kept = _read(executable, executable.stem, load=lambda raw: raw)
-    if kept is not None:  # this machine's executable: the program is lowered only if it fails
-        found, payload, _ = kept
-        out = (jax.ShapeDtypeStruct(shape, np.dtype(dtype)) for shape, dtype in found["out"])
-        out_info = _rebuild(found["layout"], out)
-
-        def lower_stored():
-            lowering = _lowering_of_program(fn, keywords, key, static, tree, leaves)
-            if lowering is None:  # exported once, it no longer exports (a changed setting)
-                raise RuntimeError(
-                    f"program store: {fn.__name__}'s executable does not load and its program "
-                    f"no longer exports; delete {_state['folder']} (a cache) and run again"
-                )
-            return lowering.lower()
-
-        return StoredLowering(found["layout"], out_info, lower_stored, executable, payload)
-    lowering = _lowering_of_program(fn, keywords, key, static, tree, leaves)
-    if lowering is None:
-        return None
-    return dataclasses.replace(lowering, executable=executable)
-
-
-def _lowering_of_program(fn, keywords, key, static, tree, leaves) -> StoredLowering | None:
-    import jax
 
     folder = _state["folder"]
     path = folder / f"{key}{SUFFIX}"
@@ -545,14 +400,11 @@ def _lowering_of_program(fn, keywords, key, static, tree, leaves) -> StoredLower
     def call(*leaves):
         return program.call(*leaves)
 
-    # JAX's log and compile cache name it; the key in the name gives each stored program an
-    # entry of JAX's cache of its own, so that its first compile is XLA's and is kept
-    # (_compile), also where an earlier version compiled the same StableHLO
-    call.__name__ = call.__qualname__ = f"{fn.__name__}_{key[:12]}"
+    call.__name__ = call.__qualname__ = fn.__name__  # JAX's log and compile cache name it
     shapes = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
     out_avals = (jax.ShapeDtypeStruct(a.shape, a.dtype) for a in program.out_avals)
     out_info = _rebuild(layout, out_avals)
-    return StoredLowering(layout, out_info, lambda: jax.jit(call).lower(*shapes))
+    return StoredLowering(layout, jax.jit(call).lower(*shapes), out_info)
 
 
 def _arrays_to_json(value: dict) -> dict:
