@@ -21,6 +21,9 @@ diffrax, tracing and compiling its programs. This script prints
    the modules the solve needs (JAX, diffrax, the engine);
 3. the anchor: ``svzerod`` (svZeroDSolver's own build) solving its closed-loop heart case
    from a fresh process, and each timed command's warm median against it;
+1b. per command, where one more warm run's time goes (:func:`warm_breakdown`): imports, the
+   stored programs' lowering and executables' load, the eager operations, and the rest
+   (solving and Python);
 4. JAX's own log of the main job without the cache (``JAX_LOG_COMPILES``): tracing, lowering
    and XLA compilation per jitted function, largest first. The quasi-static strokes compile on
    a second thread while the dynamic solve traces and compiles, so the entries overlap and do
@@ -90,6 +93,49 @@ def _wall(cmd, env=None) -> float:
     return time.perf_counter() - start
 
 
+IMPORT_LINE = re.compile(r"import time:\s+\d+ \|\s+(\d+) \| (\s*)(\S+)")
+STORED = re.compile(r"_solve|strokes|orbit|derivative")
+"""The stored programs' names in JAX's log (the batch and loop solves, the quasi-static strokes,
+design's orbits and their derivatives); every other jitted name is an eager operation."""
+
+
+def warm_breakdown(cmd, env) -> dict[str, float]:
+    """Where one warm run of ``cmd`` (its cache in ``env``, already filled) spends its wall
+    time, from ``python -X importtime`` and JAX's own log (``JAX_LOG_COMPILES``), s: the
+    imports; the stored programs' lowering again and their executables' load from the compile
+    cache (JAX logs that load as "XLA compilation"); the eager operations (tracing, lowering
+    and loading each); and the rest: solving, Python, the interpreter's start and exit. The
+    parts are approximate: ``-X importtime`` slows the imports it times, and the main job
+    loads its two programs on two threads at once, so that the rest can come out near zero or
+    below."""
+    env = {**env, "JAX_LOG_COMPILES": "1"}
+    start = time.perf_counter()
+    run = subprocess.run(
+        [cmd[0], "-X", "importtime", *cmd[1:]], cwd=REPO, env=env, capture_output=True,
+        text=True, check=True,
+    )  # fmt: skip
+    wall = time.perf_counter() - start
+    out = {"wall": wall, "imports": 0.0, "stored: lower": 0.0, "stored: load": 0.0, "eager": 0.0}
+    counts = {"eager": 0}
+    for line in run.stderr.splitlines():
+        found = IMPORT_LINE.search(line)
+        if found and not found.group(2):  # a top-level import: its cumulative time
+            out["imports"] += int(found.group(1)) * 1e-6
+            continue
+        found = LOG_LINE.search(line)
+        if not found:
+            continue
+        phase, name, sec = found.groups()
+        if STORED.search(name):  # its tracing is of the call of the exported program
+            out["stored: load" if PHASES[phase] == "compile" else "stored: lower"] += float(sec)
+        else:
+            out["eager"] += float(sec)
+            counts["eager"] += phase == "tracing"
+    out["rest"] = wall - sum(v for k, v in out.items() if k != "wall")
+    out["eager operations"] = counts["eager"]
+    return out
+
+
 def _cold_warm_traced(cmd, repeat: int) -> dict[str, list[float]]:
     walls = {"cold": [], "cold, traced": [], "warm": [], "warm, traced": []}
     for _ in range(repeat):
@@ -109,6 +155,7 @@ def _cold_warm_traced(cmd, repeat: int) -> dict[str, list[float]]:
             traced = {**env, "CARDIOSOFT_COMPILE_CACHE": other, "CARDIOSOFT_PROGRAM_STORE": "0"}
             _wall(cmd, traced)
             walls["warm, traced"].append(_wall(cmd, traced))
+            walls["breakdown"] = warm_breakdown(cmd, env)  # the last repeat's
     return walls
 
 
@@ -130,6 +177,7 @@ def main(argv=None) -> int:
     for name in args.commands:
         command, warm_target, cold_target = COMMANDS[name]
         walls = _cold_warm_traced(fresh_process(name), args.repeat)
+        breakdown = walls.pop("breakdown")
         median = {kind: statistics.median(w) for kind, w in walls.items()}
         print(f"   {name}: python -m {' '.join(command)}")
         for kind, w in walls.items():
@@ -147,6 +195,13 @@ def main(argv=None) -> int:
         if cold_target:
             ratios.append(f"cold / its {cold_target:g} s: {median['cold'] / cold_target:.2f}")
         print(f"     {'; '.join(ratios)}")
+        print(
+            "     one more warm run, where its time goes (s; JAX's log, -X importtime): "
+            + ", ".join(
+                f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}"
+                for k, v in breakdown.items()
+            )
+        )
         warm[name] = median["warm"]
         if name == "main":
             best = min(walls["cold"])
