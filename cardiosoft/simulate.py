@@ -145,10 +145,17 @@ def parser(prog: str | None = None):
         "compliance) would narrow it (linear over all the posterior's draws: two batched "
         "solves of them, about a minute more)",
     )
-    add_model_options(
+    models = add_model_options(
         p,
         "put the soft pump (--omega, --shortening, --pump; default the prototype) in place of "
         "the model's chamber NAME",
+    )
+    models.add_argument(
+        "--as-svzerod",
+        action="store_const",
+        const=True,
+        help="step the model as svZeroDSolver steps it (its generalized-alpha scheme at its "
+        "own step) for svZeroDSolver's digits, not the converged answer",
     )
     add_output_options(p, "summary.json, traces.csv, figure.png", plot="the figure")
     add_report_options(p)
@@ -328,7 +335,7 @@ def main(argv=None, prog: str | None = None) -> int:
     from cardiosoft._cli import refuse_model_options
 
     try:
-        refuse_model_options(args)
+        refuse_model_options(args, own=("as_svzerod",))
     except ValueError as err:
         return fail(err)
     args.steady = args.steady or "beats"  # a scene always runs to its periodic steady state

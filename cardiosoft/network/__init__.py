@@ -1,7 +1,9 @@
 """Networks of blocks, and svZeroDSolver's models read into them.
 
 ``read`` takes an svZeroDSolver JSON model (a path or a dict), ``simulate`` runs it as
-svZeroDSolver defines the run and returns its variables under svZeroDSolver's names.
+svZeroDSolver defines the run and returns its variables under svZeroDSolver's names (the
+model's converged answer); ``step_as_svzerod`` steps it as svZeroDSolver steps it (its
+digits).
 svZeroDSolver files carry no units: a model is solved in its own (CGS, mmHg-ml-s or SI).
 """
 
@@ -18,16 +20,18 @@ PUBLIC = {
     "Model": "cardiosoft.network.svzerod",
     "read": "cardiosoft.network.svzerod",
     "run_svzerod": "cardiosoft.network.svzerod",
+    "step_as_svzerod": "cardiosoft.network.gen_alpha",
 }
 """Each public name and the module it is defined in, imported on first use: a scene's modules
 import this package's blocks without its svZeroDSolver reader."""
 
 __all__ = [
     "SUPPORTED_BLOCKS", "Model", "Network", "Traces", "UnsupportedModel", "read", "run_svzerod",
-    "simulate",
+    "simulate", "step_as_svzerod",
 ]  # fmt: skip
 
 if TYPE_CHECKING:  # what type checkers read; at run time __getattr__ imports these
+    from cardiosoft.network.gen_alpha import step_as_svzerod as step_as_svzerod
     from cardiosoft.network.network import Network as Network
     from cardiosoft.network.run import Traces as Traces
     from cardiosoft.network.run import simulate as simulate

@@ -19,6 +19,10 @@ from it (its numerical error estimate; ``summary.json``'s ``verification``).
 ``number_of_cardiac_cycles`` and reports the steady beat
 (:func:`cardiosoft.network.run.simulate`'s ``steady``).
 
+``--as-svzerod`` steps the model as svZeroDSolver steps it, its generalized-alpha scheme at
+the model's own step, for svZeroDSolver's digits rather than the converged answer
+(:func:`cardiosoft.network.gen_alpha.step_as_svzerod`).
+
 Exit status: 0; 1 when the solve failed, its Newton did not converge or, with ``--steady``, the
 steady state was not reached; 2 on bad input (a model or an option this reader does not take,
 refused in one line).
@@ -74,6 +78,18 @@ def _check_options(args) -> None:
                 f"--{name.replace('_', '-')} does not apply to an svZeroDSolver model; "
                 "its file sets the run"
             )
+    if getattr(args, "as_svzerod", None):
+        for flag, given in (
+            ("--steady", getattr(args, "steady", None) is not None),
+            ("--accuracy", getattr(args, "accuracy", None) is not None),
+            ("--verify", getattr(args, "verify", False)),
+            ("--pump-chamber", placing),
+        ):
+            if given:
+                raise ValueError(
+                    f"--as-svzerod: not with {flag} (the model is stepped as svZeroDSolver "
+                    "steps it: its own cycles and step, its own blocks)"
+                )
     if getattr(args, "steady", None) == "shooting":
         raise ValueError(
             "--steady shooting: an svZeroDSolver model reaches its periodic steady state beat "
@@ -118,7 +134,16 @@ def simulate_model(args, console) -> int:
         f"{net.n_states} states; {beats} of {net.period:g} s; compiling, then solving ..."
     )
     start = time.perf_counter()
-    traces = simulate(model, args.accuracy or "default", steady=steady)
+    if getattr(args, "as_svzerod", None):
+        from cardiosoft.network.gen_alpha import step_as_svzerod
+        from cardiosoft.network.simulation_parameters import UnsupportedModel
+
+        try:
+            traces = step_as_svzerod(model)
+        except UnsupportedModel as err:
+            return fail(ValueError(f"--scene {args.scene}: {err}"))
+    else:
+        traces = simulate(model, args.accuracy or "default", steady=steady)
     seconds = time.perf_counter() - start
     console.say(
         f"done in {seconds:.1f} s ({traces.steps} steps"

@@ -243,7 +243,7 @@ def simulate(
             )
             solved, steps = periodic["steady"] is not None, steps + more
     solved = solved and bool(jnp.all(converged))
-    values = _node_columns(model.network, zs)
+    values = node_columns(model.network, zs)
     values.update(internal)  # with the derivative, its ydot: columns last
     values = {k: np.asarray(v) for k, v in values.items()}
     if caps and not output_all:  # the last beat alone
@@ -256,7 +256,7 @@ def simulate(
     )  # fmt: skip
 
 
-def _node_columns(net, zs, prefix: str = "") -> dict:
+def node_columns(net, zs, prefix: str = "") -> dict:
     """Each node's pressure and flow in ``zs`` (nodes last) by svZeroDSolver's name."""
     n, columns = net.n_nodes, {}
     for i, (up, down) in enumerate(net.nodes):
@@ -358,7 +358,7 @@ def _read_out(net, ts, xs, derivative: bool):
     if derivative:
         before = ts - RATE_LAG * net.period
         _, (z_rates, rates) = jax.vmap(net.variables_and_rates)(before, xs)
-        internal.update(_node_columns(net, z_rates, "ydot:"))
+        internal.update(node_columns(net, z_rates, "ydot:"))
         internal.update({f"ydot:{k}": v for k, v in rates.items()})
     n = net.n_nodes
     scale = jnp.stack([jnp.max(jnp.abs(zs[:, :n])), jnp.max(jnp.abs(zs[:, n:]))])

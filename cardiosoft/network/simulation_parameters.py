@@ -38,6 +38,10 @@ class Simulation:
     ``csv_writer`` averages them; the records still describe the last beat."""
     derivative: bool = False
     """``output_derivative``: the output has each variable's time derivative too (``ydot``)."""
+    rho_infty: float = 0.5
+    """``rho_infty``: the spectral radius at infinity of svZeroDSolver's generalized-alpha
+    scheme, used where a model is stepped as svZeroDSolver steps it
+    (:mod:`cardiosoft.network.gen_alpha`)."""
 
     @property
     def steps_per_cycle(self) -> int:
@@ -69,6 +73,7 @@ def _parameters(sim: dict) -> Simulation:
         cycle_error=error,
         mean_only=bool(sim.get("output_mean_only", False)),
         derivative=bool(sim.get("output_derivative", False)),
+        rho_infty=float(sim.get("rho_infty", 0.5)),
     )
 
 
