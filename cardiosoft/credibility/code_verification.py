@@ -62,6 +62,7 @@ TEST_GROUPS = {
     "svZeroDSolver, the peer": (
         "tests/test_network.py", "tests/test_network_random.py",
         "tests/test_network_steady.py", "tests/test_network_loop.py",
+        "tests/test_network_gen_alpha.py",
     ),
 }  # fmt: skip
 """The test files that hold each kind of check (``tests/README.md`` writes the closed forms out)."""
