@@ -106,6 +106,8 @@ def test_the_command_writes_svzerods_digits(tmp_path, capsys):
     written = {k: table[k] for k in table.dtype.names if k != "time"}
     worst, name = _worst(written, run_svzerod(_config("valve_tanh")))
     assert worst <= BOUND, f"{name}: {worst:.2e}"  # traces.csv keeps 10 significant digits
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["accuracy"].startswith("stepped as svZeroDSolver steps it"), summary
 
     assert main(["--scene", scene, "--as-svzerod", "--steady", "--quiet"]) == 2
     assert "--as-svzerod: not with --steady" in capsys.readouterr().err

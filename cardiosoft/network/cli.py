@@ -204,7 +204,12 @@ def simulate_model(args, console) -> int:
             "beats": sim.cycles if traces.beats is None else traces.beats,
             "steady": traces.steady,
             "steady_residual": traces.residual,
-            "accuracy": args.accuracy or "default",
+            "accuracy": (
+                f"stepped as svZeroDSolver steps it (generalized alpha, rho_infty "
+                f"{sim.rho_infty:g}, {sim.steps_per_cycle} steps a beat)"
+                if getattr(args, "as_svzerod", None)
+                else args.accuracy or "default"
+            ),
             "solved": traces.solved,
             "steady_start": traces.steady_start,
             "steps": traces.steps,
