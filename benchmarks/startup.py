@@ -16,14 +16,13 @@ diffrax, tracing and compiling its programs. This script prints
    cold run filled; cardiosoft._cli) with the programs loaded from the store
    (cardiosoft.program_store), and a warm one with the programs traced in each process
    (``CARDIOSOFT_PROGRAM_STORE=0``, issue #41's "before"), with the ratios to each other and
-   to the issue's targets;
+   to the issue's targets, and where one more warm run's time goes (:func:`warm_breakdown`):
+   imports, the stored programs' lowering and executables' load, the eager operations, and
+   the rest (solving and Python);
 2. the import time of a fresh process: ``import cardiosoft`` against issue #41's 0.8 s, and
    the modules the solve needs (JAX, diffrax, the engine);
 3. the anchor: ``svzerod`` (svZeroDSolver's own build) solving its closed-loop heart case
    from a fresh process, and each timed command's warm median against it;
-1b. per command, where one more warm run's time goes (:func:`warm_breakdown`): imports, the
-   stored programs' lowering and executables' load, the eager operations, and the rest
-   (solving and Python);
 4. JAX's own log of the main job without the cache (``JAX_LOG_COMPILES``): tracing, lowering
    and XLA compilation per jitted function, largest first. The quasi-static strokes compile on
    a second thread while the dynamic solve traces and compiles, so the entries overlap and do
@@ -93,7 +92,7 @@ def _wall(cmd, env=None) -> float:
     return time.perf_counter() - start
 
 
-IMPORT_LINE = re.compile(r"import time:\s+\d+ \|\s+(\d+) \| (\s*)(\S+)")
+IMPORT_LINE = re.compile(r"import time:\s+\d+ \|\s+(\d+) \| (\s*)\S")
 STORED = re.compile(r"_solve|strokes|orbit|derivative")
 """The stored programs' names in JAX's log (the batch and loop solves, the quasi-static strokes,
 design's orbits and their derivatives); every other jitted name is an eager operation."""
@@ -116,7 +115,7 @@ def warm_breakdown(cmd, env) -> dict[str, float]:
     )  # fmt: skip
     wall = time.perf_counter() - start
     out = {"wall": wall, "imports": 0.0, "stored: lower": 0.0, "stored: load": 0.0, "eager": 0.0}
-    counts = {"eager": 0}
+    eager = 0
     for line in run.stderr.splitlines():
         found = IMPORT_LINE.search(line)
         if found and not found.group(2):  # a top-level import: its cumulative time
@@ -130,9 +129,9 @@ def warm_breakdown(cmd, env) -> dict[str, float]:
             out["stored: load" if PHASES[phase] == "compile" else "stored: lower"] += float(sec)
         else:
             out["eager"] += float(sec)
-            counts["eager"] += phase == "tracing"
+            eager += phase == "tracing"
     out["rest"] = wall - sum(v for k, v in out.items() if k != "wall")
-    out["eager operations"] = counts["eager"]
+    out["eager operations"] = eager
     return out
 
 

@@ -77,27 +77,29 @@ def _steps(net, y0, ydot0, dt, n_steps: int, rho: float):
         y_old, ydot_old = carry
         t_af = (n + alpha_f) * dt
 
-        def stage(ydot):
-            y = y_old + dt * ydot_old + gamma * dt * (ydot - ydot_old)
-            y_af = y_old + alpha_f * (y - y_old)
-            ydot_am = ydot_old + alpha_m * (ydot - ydot_old)
-            return _residual(net, t_af, y_af, ydot_am), y
+        def advanced(ydot):  # the step's end for the rates ydot
+            return y_old + dt * ydot_old + gamma * dt * (ydot - ydot_old)
+
+        def residual(ydot):  # at the generalized mid-point; twice, as value and as aux
+            y_af = y_old + alpha_f * (advanced(ydot) - y_old)
+            r = _residual(net, t_af, y_af, ydot_old + alpha_m * (ydot - ydot_old))
+            return r, r
 
         def newton(state):
             i, ydot, _ = state
-            r, _ = stage(ydot)
-            delta = jnp.linalg.solve(jax.jacfwd(lambda v: stage(v)[0])(ydot), -r)
+            jacobian, r = jax.jacfwd(residual, has_aux=True)(ydot)  # one evaluation
+            delta = jnp.linalg.solve(jacobian, -r)
             return i + 1, ydot + delta, jnp.max(jnp.abs(gamma * dt * delta))
 
         def going(state):
             i, ydot, change = state
-            y = stage(ydot)[1]
-            return (i < MAX_NEWTON) & (change > NEWTON_TOLERANCE * (1.0 + jnp.max(jnp.abs(y))))
+            scale = 1.0 + jnp.max(jnp.abs(advanced(ydot)))
+            return (i < MAX_NEWTON) & (change > NEWTON_TOLERANCE * scale)
 
         predicted = ydot_old * (1.0 - 1.0 / gamma)  # svZeroDSolver's predictor: y kept
         start = (0, predicted, jnp.asarray(jnp.inf, dtype=y_old.dtype))
         i, ydot, _ = jax.lax.while_loop(going, newton, start)
-        y = stage(ydot)[1]
+        y = advanced(ydot)
         return (y, ydot), (y, i < MAX_NEWTON)
 
     _, (ys, converged) = jax.lax.scan(step, (y0, ydot0), jnp.arange(n_steps))
@@ -127,7 +129,7 @@ def _internal(net, ys, first: dict, dt, rho: float) -> dict:
         v = jax.tree.map(lambda a, b: a + (b - a) / alpha_f, v, g_af)
         return v, v
 
-    first = {k: jnp.asarray(first[k], dtype=ys.dtype) for k in g}
+    first = {k: first[k] for k in g}
     _, rest = jax.lax.scan(carry, first, g)
     return {k: jnp.concatenate([first[k][None], rest[k]]) for k in g}
 
@@ -168,8 +170,8 @@ def step_as_svzerod(model: Model) -> Traces:
     dt = net.period / sim.steps_per_cycle
     ys, converged = _steps(net, y0, jnp.zeros_like(y0), dt, n_steps, sim.rho_infty)
     n = net.n_states
-    if steady_start is None:  # the internal variables as given
-        first = {k: model.initial[k] for k in _output_names(net)}
+    if steady_start is None:  # the internal variables as given (arrays: not static)
+        first = {k: jnp.asarray(model.initial[k], ys.dtype) for k in _output_names(net)}
     else:  # as the steady start-up leaves them: at the steady state's
         first = net.outputs(0.0, ys[0, :n], ys[0, n:])
     internal = _internal(net, ys, first, dt, sim.rho_infty)
