@@ -51,6 +51,7 @@ from cardiosoft.units import (
 )
 
 __all__ = [
+    "BENCH_EFFECTS",
     "AbstractAfterload",
     "AbstractPreload",
     "AtrialCompliance",
@@ -63,6 +64,9 @@ __all__ = [
     "Windkessel4",
     "inlet_pressure",
 ]
+
+BENCH_EFFECTS = ("column_rise", "column_inertia", "tube_inertia", "tube_resistance", "minor_loss")
+"""The terms of the bench's line and column (:meth:`Bench.of`), as the scene files name them."""
 
 _R = mmHg_s_per_ml
 _C = ml_per_mmHg
@@ -294,6 +298,28 @@ class Bench(AbstractAfterload):
 
     def stored_volume(self, y):
         return self.column.stored_volume(y)  # a rigid tube holds a constant volume
+
+    @classmethod
+    def of(
+        cls, column_diameter, head, tube_length, tube_diameter, loss_coefficient, effects
+    ) -> Bench:
+        """The paper's rig (SI) with those of :data:`BENCH_EFFECTS` named in ``effects``
+        present, the others absent."""
+        column = WaterColumn(
+            column_diameter,
+            head,
+            rise="column_rise" in effects,
+            inertia="column_inertia" in effects,
+        )
+        tube = Tube(
+            tube_length,
+            tube_diameter,
+            loss_coefficient=loss_coefficient,
+            inertia="tube_inertia" in effects,
+            resistance="tube_resistance" in effects,
+            minor_loss="minor_loss" in effects,
+        )
+        return cls(tube, column)
 
 
 def _wk_init(p_venous):

@@ -46,7 +46,7 @@ import jax
 from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import BPM_RANGE, SHAPES
-from cardiosoft.circulation import AtrialSource, Bench, Tube, WaterColumn, Windkessel3
+from cardiosoft.circulation import BENCH_EFFECTS, AtrialSource, Bench, Windkessel3
 from cardiosoft.network.loop_scene import LoopScene, parse_loop_scene
 from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, check_pump_name
 from cardiosoft.solve import ACCURACY_PRESETS
@@ -80,32 +80,20 @@ class WaterColumnAfterload:
     """
 
     tag: ClassVar[str] = "water_column"
-    effects: ClassVar[tuple[str, ...]] = (
-        "column_rise",
-        "column_inertia",
-        "tube_inertia",
-        "tube_resistance",
-        "minor_loss",
-    )
+    effects: ClassVar[tuple[str, ...]] = BENCH_EFFECTS
     has_heads: ClassVar[bool] = True
 
     def blocks(self, scene: Scene, head) -> dict:
         """The :class:`~cardiosoft.circuit.PumpCircuit` arguments of the bench at ``head``."""
-        column = WaterColumn(
+        bench = Bench.of(
             scene.column_diameter,
             head,
-            rise=scene.has("column_rise"),
-            inertia=scene.has("column_inertia"),
-        )
-        tube = Tube(
             scene.tube_length,
             scene.tube_diameter,
-            loss_coefficient=scene.loss_coefficient,
-            inertia=scene.has("tube_inertia"),
-            resistance=scene.has("tube_resistance"),
-            minor_loss=scene.has("minor_loss"),
+            scene.loss_coefficient,
+            scene.effects,
         )
-        return {"afterload": Bench(tube, column)}
+        return {"afterload": bench}
 
 
 @dataclasses.dataclass(frozen=True)
