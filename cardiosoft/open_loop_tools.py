@@ -119,10 +119,10 @@ def unsupported(scene: Scene, what: str) -> str | None:
             "is static; the posterior's ensemble runs on the dynamic pump scenes "
             "(bench-dynamic, lv-systemic, rv-pulmonary or your own)"
         )
-    if what == "export" and scene.afterload.has_heads:
-        from cardiosoft.network.export_open_loop import UNSUPPORTED
+    if what == "export":
+        from cardiosoft.network.export_open_loop import refusal
 
-        return UNSUPPORTED
+        return refusal(scene)
     if what == "loop_design":
         return "is not a closed loop: cardiosoft.design.optimise designs its pump"
     return None

@@ -222,6 +222,6 @@ def test_export_writes_a_closed_loop_and_refuses_the_rest(tmp_path, capsys):
     assert kinds == ["LinearElastanceChamber"] * 3 + ["SoftPump"]
     assert {v["type"] for v in model["valves"]} == {"ArctanValve"}
     assert main(["export", "--svzerod", "soft-lv", "--out", str(out)]) == 2  # exists
-    assert main(["export", "--svzerod", "bench-dynamic", "--out", str(tmp_path / "b.json")]) == 2
-    assert "water column" in capsys.readouterr().err
+    assert main(["export", "--svzerod", "bench-static", "--out", str(tmp_path / "b.json")]) == 2
+    assert "is static" in capsys.readouterr().err
     assert not (tmp_path / "b.json").exists()

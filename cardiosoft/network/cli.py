@@ -160,10 +160,15 @@ def simulate_model(args, console) -> int:
             f"change {traces.residual:.3g} times the steady tolerance)",
         )
     beat = traces.last_beat(sim.points_per_cycle)  # what the records describe
-    pump = None if placement is None else pump_metrics(beat, placement, net.nodes)
+    placements = ((placement,) if placement is not None else ()) + model.pumps
+    pumps = {p.chamber: pump_metrics(beat, p, net.nodes) for p in placements}
+    pump = None if placement is None else pumps[placement.chamber]
     blocks = block_metrics(net, beat)
-    for flag in [] if pump is None else pump_flags(pump):
-        console.flag(model.name, flag)
+    for own in model.pumps:  # the file's own pumps: their records are their blocks'
+        blocks[own.chamber] = {**blocks.get(own.chamber, {}), **pumps[own.chamber]}
+    for name, record in pumps.items():
+        for flag in pump_flags(record):
+            console.flag(f"{model.name} {name}", flag)
     uncertainty = verification = None
     if posterior is not None:
         uncertainty = _bands(args, model, placement, posterior, steady, pump, blocks, console)
@@ -173,14 +178,15 @@ def simulate_model(args, console) -> int:
         print(_table(model, beat))
         if blocks:
             print(block_table(blocks))
-        if pump is not None:
+        for p in placements:
+            record = pumps[p.chamber]
+            where = f"in place of {p.chamber}" if p is placement else p.chamber
             print(
-                f"soft pump in place of {placement.chamber} (Omega {placement.omega:g}, "
-                f"C {placement.shortening:g}), last beat: EDV {pump['edv_ml']:.1f} ml, "
-                f"ESV {pump['esv_ml']:.1f} ml, SV {pump['stroke_volume_ml']:.1f} ml, "
-                f"EF {pump['ejection_fraction']:.2f}, peak cable force "
-                f"{pump['peak_force_N']:.1f} N, cable work {pump['cable_work_J']:.3f} J, "
-                f"efficiency {_or_dash(pump['efficiency'])}"
+                f"soft pump {where} (Omega {p.omega:g}, C {p.shortening:g}), last beat: "
+                f"EDV {record['edv_ml']:.1f} ml, ESV {record['esv_ml']:.1f} ml, "
+                f"SV {record['stroke_volume_ml']:.1f} ml, EF {record['ejection_fraction']:.2f}, "
+                f"peak cable force {record['peak_force_N']:.1f} N, cable work "
+                f"{record['cable_work_J']:.3f} J, efficiency {_or_dash(record['efficiency'])}"
             )
     if out_dir is not None:
         summary = {

@@ -204,4 +204,6 @@ def pump_entry(placement) -> dict:
     :class:`~cardiosoft.network.pump_in_model.PumpPlacement`: its fields, which the reader
     takes back."""
     values = dataclasses.asdict(placement)
+    # the shell's effects are absent unless the scene has them: not written as null or 0
+    values = {k: v for k, v in values.items() if v is not None and (k != "ramp_time" or v)}
     return {"type": "SoftPump", "name": values.pop("chamber"), "values": values}

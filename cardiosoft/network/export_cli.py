@@ -1,10 +1,11 @@
 """``cardiosoft export --svzerod SCENE --out FILE``: a scene written as an svZeroDSolver model
 (the writers: :mod:`cardiosoft.network.export` for a closed loop,
-:mod:`cardiosoft.network.export_open_loop` for the pump with a Windkessel)."""
+:mod:`cardiosoft.network.export_open_loop` for the pump with a Windkessel or on the bench)."""
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 
@@ -15,11 +16,19 @@ def parser(prog: str | None = None):
 
     p = command_parser(
         "export",
-        "Write a scene as an svZeroDSolver model (JSON): a closed loop, or the pump with a "
-        "Windkessel (lv-systemic, rv-pulmonary).",
+        "Write a scene as an svZeroDSolver model (JSON): a closed loop, the pump with a "
+        "Windkessel (lv-systemic, rv-pulmonary) or on the dynamic bench (bench-dynamic).",
         prog=prog,
     )
-    p.add_argument("--svzerod", metavar="SCENE", required=True, help="a scene with no water column")
+    p.add_argument(
+        "--svzerod", metavar="SCENE", required=True, help="a shipped scene's name or a scene file"
+    )
+    p.add_argument(
+        "--afterload",
+        metavar="MMHG",
+        type=float,
+        help="the bench's column head at the pump base (mmHg; default the scene's first)",
+    )
     p.add_argument("--out", metavar="FILE", required=True, help="the JSON file to write")
     p.add_argument(
         "--units",
@@ -40,6 +49,7 @@ def main(argv=None, prog: str | None = None) -> int:
     from cardiosoft.files import atomic_path, refuse_overwrite
     from cardiosoft.scene import load_scene
     from cardiosoft.scene_tools import check_supported, tools
+    from cardiosoft.units import mmHg
 
     args = parser(prog).parse_args(argv)
     jax.config.update("jax_enable_x64", True)
@@ -48,6 +58,16 @@ def main(argv=None, prog: str | None = None) -> int:
             raise ValueError(f"--beats = {args.beats}: allowed 1 to 500")
         scene = load_scene(args.svzerod)
         check_supported(scene, "export", f"--svzerod {args.svzerod}")
+        given = None if args.afterload is None else (args.afterload,)
+        heads = tools(scene).column_heads(scene, given, "set")  # None without a column
+        if heads is not None:  # the file holds one head
+            if given is None and len(heads) > 1:
+                print(
+                    f"{scene.name} has the column heads {', '.join(f'{h:g}' for h in heads)} "
+                    "mmHg: writing the first (--afterload MMHG writes another)",
+                    file=sys.stderr,
+                )
+            scene = scene.replace(afterloads=(heads[0] * mmHg,))
         refuse_overwrite(Path(args.out), args.force)
         model = tools(scene).svzerod_model(scene, args.units, args.beats)
     except (ValueError, OSError) as err:

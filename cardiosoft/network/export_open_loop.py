@@ -1,8 +1,9 @@
-"""``cardiosoft export --svzerod SCENE`` of an open-loop scene with a Windkessel afterload
-(``lv-systemic``, ``rv-pulmonary``): the pump between an atrium and a 3-element Windkessel.
+"""``cardiosoft export --svzerod SCENE`` of an open-loop scene: the pump between an atrium and a
+3-element Windkessel (``lv-systemic``, ``rv-pulmonary``), or the paper's dynamic bench
+(``bench-dynamic``).
 
-The scene (:class:`~cardiosoft.scene.Scene`, its :class:`~cardiosoft.circuit.PumpCircuit`)
-becomes, in the file's units:
+A scene with a Windkessel (:class:`~cardiosoft.scene.Scene`, its
+:class:`~cardiosoft.circuit.PumpCircuit`) becomes, in the file's units:
 
 - the atrium a ``PRESSURE`` boundary condition ``preload`` at the scene's constant filling
   pressure;
@@ -18,20 +19,36 @@ becomes, in the file's units:
 - the pump the extension chamber ``SoftPump`` named ``pump``
   (:func:`cardiosoft.network.export.pump_entry`).
 
-The start is the scene's rest (the pump filled at the atrial pressure at zero pull, the
-capacitor at the venous pressure), without svZeroDSolver's steady start-up. Read back
-(``cardiosoft simulate --scene FILE``) the file gives the scene's beats
-(``tests/test_network_export.py``). A water-column bench has no svZeroDSolver form
-(:data:`UNSUPPORTED`), nor has a shell effect, whose law no block of the file carries.
+The bench becomes the ``SoftPump`` ``pump`` with the shell's effects the scene names (the
+crosshead's ramp, the shell's viscoelasticity, the cables' friction:
+:class:`~cardiosoft.network.pump_in_model.PumpPlacement`), joined by a ``NORMAL_JUNCTION``
+``J_pump_column`` to the extension boundary condition ``WaterColumn`` ``column``, the tube into
+the open column (:mod:`cardiosoft.network.water_column`), at one of the scene's column heads
+(its first unless the scene is narrowed to another, ``cardiosoft export --afterload``).
+
+The start is the scene's rest (the pump filled at the atrial pressure, or the column's head, at
+zero pull; the capacitor at the venous pressure; the column at its first level, the line at
+rest), without svZeroDSolver's steady start-up. Read back (``cardiosoft simulate --scene FILE``)
+the file gives the scene's beats (``tests/test_network_export.py``). The static bench has no
+beat to step, and the cables' slack and the wall's contact no block of the file carries
+(:func:`refusal`).
 """
 
 from __future__ import annotations
 
-UNSUPPORTED = (
-    "has a water column behind a tube, which has no svZeroDSolver block (only the Windkessel "
-    "scenes lv-systemic and rv-pulmonary are written)"
-)
-"""Why a bench scene is not written (:func:`cardiosoft.open_loop_tools.unsupported`)."""
+
+def refusal(scene) -> str | None:
+    """Why the open-loop ``scene`` is not written, or None
+    (:func:`cardiosoft.open_loop_tools.unsupported`)."""
+    if scene.static:
+        return (
+            "is static: a quasi-static pull, with no beat for a model to step (write the "
+            "dynamic bench, bench-dynamic)"
+        )
+    for effect in ("cable_slack", "wall_contact"):
+        if scene.has(effect):
+            return f"has the shell effect {effect!r}, which no block of the file carries"
+    return None
 
 
 def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
@@ -46,13 +63,16 @@ def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
 
     if units not in UNIT_SYSTEMS:
         raise ValueError(f"--units {units!r} is not one of {', '.join(UNIT_SYSTEMS)}")
+    reason = refusal(scene)
+    if reason is not None:
+        raise ValueError(f"scene {scene.name} {reason}")
     if scene.afterload.has_heads:
-        raise ValueError(f"scene {scene.name} {UNSUPPORTED}")
+        return _bench(scene, units, beats, pump)
     shell = [e for e in scene.effects if e in SHELL_EFFECTS]
     if shell:
         raise ValueError(
             f"scene {scene.name}: the shell effect {shell[0]!r} has no svZeroDSolver block "
-            "(the file's SoftPump is the surrogate's chamber law alone)"
+            "(the file's SoftPump with a Windkessel is the surrogate's chamber law alone)"
         )
     if scene.valve_kind != "smooth":
         raise ValueError(
@@ -62,7 +82,7 @@ def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
     if scene.ramp_time > 0:
         raise ValueError(
             f"scene {scene.name}: actuation.ramp_time_s = {scene.ramp_time:g} s is not written "
-            "(SoftPump's pull has no ramp)"
+            "with a Windkessel (its SoftPump's pull has no ramp)"
         )
     parts = scene.afterload.blocks(scene)
     windkessel, preload = parts["afterload"], parts["preload"]
@@ -122,3 +142,72 @@ def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
         "chambers": [pump_entry(placement)],
     }
     return model_file(scene.name, units, period, beats, ("SmoothValve", "SoftPump"), parts, initial)
+
+
+def _bench(scene, units: str, beats: int, pump=None) -> dict:
+    """The dynamic bench at the scene's first column head (module docstring)."""
+    from cardiosoft.batch import scene_circuit
+    from cardiosoft.circulation import BENCH_EFFECTS
+    from cardiosoft.network.export import model_file, pump_entry
+    from cardiosoft.network.pump_in_model import UNIT_SYSTEMS, PumpPlacement
+    from cardiosoft.pump import load
+    from cardiosoft.units import bpm, mm, mmHg
+
+    head = scene.afterloads[0]
+    start = scene_circuit(scene, load(pump or scene.pump), head).init()
+    viscoelastic = scene.has("shell_viscoelasticity")
+    placement = PumpPlacement(
+        "pump",
+        units,
+        omega=scene.omega,
+        shortening=scene.shortening,
+        surrogate=pump or scene.pump,
+        shape=scene.shape,
+        pull_fraction=scene.pull_fraction,
+        hold_fraction=scene.hold_fraction,
+        release_fraction=scene.release_fraction,
+        ramp_time=scene.ramp_time,
+        shell_viscoelasticity={
+            "stiffness_ratio": scene.viscoelastic_ratio,
+            "relaxation_time_s": scene.relaxation_time,
+        }
+        if viscoelastic
+        else None,
+        cable_friction={"exponent": scene.cable_friction}
+        if scene.has("cable_friction")
+        else None,
+    )
+    column = {
+        "units": units,
+        "head_mmHg": head / mmHg,
+        "column_diameter_mm": scene.column_diameter / mm,
+        "tube_length_mm": scene.tube_length / mm,
+        "tube_diameter_mm": scene.tube_diameter / mm,
+        "loss_coefficient": scene.loss_coefficient,
+        "effects": [e for e in scene.effects if e in BENCH_EFFECTS],
+    }
+    volume_unit = UNIT_SYSTEMS[units][1]
+    initial = {"Vc:pump": float(start["volume"]) / volume_unit, "column_volume:column": 0.0}
+    if viscoelastic:
+        initial["Vd:pump"] = float(start["relaxation"]) / volume_unit
+    parts = {
+        "boundary_conditions": [
+            {"bc_name": "column", "bc_type": "WaterColumn", "bc_values": column}
+        ],
+        "junctions": [
+            {
+                "junction_name": "J_pump_column",
+                "junction_type": "NORMAL_JUNCTION",
+                "inlet_blocks": ["pump"],
+                "outlet_blocks": ["column"],
+            }
+        ],
+        "chambers": [pump_entry(placement)],
+    }
+    period = 1.0 / (scene.bpm * bpm)
+    blocks = ("SoftPump", "WaterColumn")
+    model = model_file(scene.name, units, period, beats, blocks, parts, initial)
+    model["description"]["column head"] = (
+        f"{head / mmHg:g} mmHg ('cardiosoft export --afterload MMHG' writes another)"
+    )
+    return model

@@ -13,6 +13,13 @@ The pump is the paper's prototype design unless told otherwise (Omega 4, C 0.4),
 shipped ``tah`` scene pulls its pumps (:data:`PULL`), with the pull starting at the model's
 t = 0. Its cable pull (m) and force (N) are output as ``pull:NAME`` and ``cable_force:NAME``, in
 SI whatever the model's units; its volume keeps the chamber's name, ``Vc:NAME``.
+
+Written by ``cardiosoft export --svzerod`` of the bench
+(:mod:`cardiosoft.network.export_open_loop`), the pump also carries the shell's effects that
+scene names, each absent unless given
+(:class:`PumpPlacement`): the crosshead's ramp, the shell's viscoelasticity (a second state, the
+dashpot's volume ``Vd:NAME``, model units) and the cables' friction in the base holes (on the
+force output alone: the pull is prescribed).
 """
 
 from __future__ import annotations
@@ -20,11 +27,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from cardiosoft._validate import check_range
 from cardiosoft.actuation import CablePull
+from cardiosoft.circuit import CableFriction, ShellViscoelasticity
 from cardiosoft.network.block_metrics import pump_record
 from cardiosoft.network.blocks import Block
 from cardiosoft.network.loop_components import PumpChamber
@@ -44,6 +53,12 @@ PULL = dict(shape="cosine", pull_fraction=0.35, hold_fraction=0.05, release_frac
 pull over about a native ventricle's contraction (0.34 of the period), then release and rest."""
 PROTOTYPE = (4.0, 0.4)
 """The paper's prototype design (Omega, C)."""
+SHELL_EFFECTS = {
+    "shell_viscoelasticity": {"stiffness_ratio": ("-", False), "relaxation_time_s": ("s", True)},
+    "cable_friction": {"exponent": ("-", False)},
+}
+"""The shell's effects a ``SoftPump`` may carry: each one's numbers, as the scene files name
+them, with their unit and whether their lower bound 0 is open."""
 CHAMBER_VOLUMES = (1e-6, 1e-3)
 """Start volumes (m^3) a heart chamber can have, 1 ml to 1 l: a replaced chamber's start volume
 outside them, in the units given, says that the model is in other units."""
@@ -65,6 +80,15 @@ class PumpPlacement:
     release_fraction: float = PULL["release_fraction"]
     onset: float = 0.0
     """The start of the pull as a fraction of the period."""
+    ramp_time: float = 0.0
+    """The jerk-limited ends of a ``"linear"`` pull (s;
+    :class:`~cardiosoft.actuation.CablePull`)."""
+    shell_viscoelasticity: dict | None = None
+    """The shell's relaxation, ``{"stiffness_ratio": r, "relaxation_time_s": tau}``
+    (:class:`~cardiosoft.circuit.ShellViscoelasticity`), or None."""
+    cable_friction: dict | None = None
+    """The cables' capstan friction, ``{"exponent": mu theta}``
+    (:class:`~cardiosoft.circuit.CableFriction`), or None."""
 
     def __post_init__(self):
         if self.units not in UNIT_SYSTEMS:
@@ -75,44 +99,102 @@ class PumpPlacement:
         domain = Domain()
         check_range("helix parameter Omega", self.omega, "-", *domain.omega)
         check_range("cable shortening C", self.shortening, "-", *domain.shortening, lo_open=True)
+        for section, keys in SHELL_EFFECTS.items():
+            given = getattr(self, section)
+            if given is None:
+                continue
+            if not isinstance(given, dict) or set(given) != set(keys):
+                raise ValueError(
+                    f"SoftPump {self.chamber}: {section} takes {', '.join(keys)}, not {given!r}"
+                )
+            for key, (unit, lo_open) in keys.items():
+                check_range(f"{section}.{key}", given[key], unit, 0.0, lo_open=lo_open)
+
+    def shell(self) -> tuple[ShellViscoelasticity | None, CableFriction | None]:
+        """The shell's viscoelasticity and the cables' friction, each None unless given."""
+        v, f = self.shell_viscoelasticity, self.cable_friction
+        if v is not None:
+            v = ShellViscoelasticity(v["stiffness_ratio"], v["relaxation_time_s"])
+        return v, None if f is None else CableFriction(f["exponent"])
 
 
 class SoftPump(Block):
-    """The soft pump as a chamber of a model in its own units (module docstring). Ports: inlet,
-    outlet, both at the pump's pressure. State: its volume ``Vc:NAME`` (model units),
-    ``dV/dt = Q_in - Q_out``; ``P = dU/dV (V, x(t); Omega)`` converted to the model's units."""
+    """The soft pump as a chamber of a model in its own units (module docstring). Ports: inlet
+    and outlet, or the outlet alone (a bench's pump, filled and emptied through one port), all
+    at the pump's pressure. States: its volume ``Vc:NAME`` (model units),
+    ``dV/dt = Q_in - Q_out``, and with the shell's viscoelasticity the dashpot's volume
+    ``Vd:NAME``; ``P = dU/dV (V, x(t); Omega)`` (plus the Maxwell branch's ``dU_v/dV``)
+    converted to the model's units."""
 
     law: PumpChamber
     pressure_unit: jnp.ndarray = eqx.field(converter=jnp.asarray)
     """Pa per model pressure unit."""
     volume_unit: jnp.ndarray = eqx.field(converter=jnp.asarray)
     """m^3 per model volume unit."""
+    viscoelasticity: ShellViscoelasticity | None = None
+    friction: CableFriction | None = None
+    """The cables' friction, seen by the force output only."""
     kind = "SoftPump"
-    n_states = 1
+
+    @property
+    def n_states(self):
+        return 1 + (self.viscoelasticity is not None)
 
     def state_kinds(self):
-        return ("volume",)
+        return ("volume",) * self.n_states
 
     def internal_names(self):
-        return tuple(f"{v}:{self.name}" for v in ("Vc", "pull", "cable_force"))
+        states = ("Vc", "Vd")[: self.n_states]
+        return tuple(f"{v}:{self.name}" for v in (*states, "pull", "cable_force"))
 
-    def pressure(self, t, volume):
-        """The pump's pressure (model units) at a volume in model units."""
-        return self.law.pressure(t, volume * self.volume_unit) / self.pressure_unit
+    def _chamber(self, t):
+        return self.law.pump.chamber(self.law.pull(t), self.law.omega)
+
+    def _pressure(self, t, x):
+        """The pump's pressure (model units) at the states ``x`` (model units)."""
+        volume = x[0] * self.volume_unit
+        chamber = self._chamber(t)
+        pressure = chamber.pressure(volume)
+        if self.viscoelasticity is not None:
+            energy = self.viscoelasticity.energy
+            pressure = pressure + jax.grad(energy, argnums=1)(
+                chamber, volume, x[1] * self.volume_unit
+            )
+        return pressure / self.pressure_unit
 
     def residuals(self, t, x, P, Q, steady=False):
-        return jnp.stack([P[0] - self.pressure(t, x[0]), P[1] - P[0]])
+        pressure = self._pressure(t, x)
+        return jnp.stack([P[0] - pressure, *(P[i] - P[0] for i in range(1, len(self.ports)))])
 
     def rates(self, t, x, P, Q, steady=False):
-        return jnp.stack([Q[0] - Q[1]])
+        inflow = Q[0] if len(self.ports) == 2 else 0.0
+        rates = [inflow - Q[-1]]
+        if self.viscoelasticity is not None:
+            volume, relaxed = x[0] * self.volume_unit, x[1] * self.volume_unit
+            rate = self.viscoelasticity.rate(self._chamber(t), volume, relaxed)
+            rates.append(rate / self.volume_unit)
+        return jnp.stack(rates)
 
     def states_from(self, values):
-        return [values[f"Vc:{self.name}"]]
+        return [values[name] for name in self.internal_names()[: self.n_states]]
 
     def outputs(self, t, x, P, Q):
-        seen = self.law.observe(t, x[0] * self.volume_unit)
+        law, volume = self.law, x[0] * self.volume_unit
+        seen = law.observe(t, volume)
+        force = seen["cable_force"]
+        if self.viscoelasticity is not None:
+            energy = lambda pull: self.viscoelasticity.energy(  # noqa: E731
+                law.pump.chamber(pull, law.omega), volume, x[1] * self.volume_unit
+            )
+            force = force + jax.grad(energy)(seen["pull"])
+        if self.friction is not None:
+            force = force * self.friction.factor(law.actuation.velocity(t - law.onset * law.period))
         names = self.internal_names()
-        return {names[0]: x[0], names[1]: seen["pull"], names[2]: seen["cable_force"]}
+        return {
+            **{name: x[i] for i, name in enumerate(names[: self.n_states])},
+            names[-2]: seen["pull"],
+            names[-1]: force,
+        }
 
 
 def soft_pump(placement: PumpPlacement, ports, period: float, start_volume: float):
@@ -136,7 +218,8 @@ def soft_pump(placement: PumpPlacement, ports, period: float, start_volume: floa
             f"({lo / ml:g} to {hi / ml:g} ml){hint}: pass the model's units with --units"
         )
     law = pump_law(placement, period)
-    return SoftPump(placement.chamber, tuple(ports), law, pressure_unit, volume_unit)
+    shell = placement.shell()
+    return SoftPump(placement.chamber, tuple(ports), law, pressure_unit, volume_unit, *shell)
 
 
 def pump_law(placement: PumpPlacement, period: float) -> PumpChamber:
@@ -144,17 +227,18 @@ def pump_law(placement: PumpPlacement, period: float) -> PumpChamber:
     pump = load(placement.surrogate)
     stroke = placement.shortening * pump.cable_length(placement.omega)
     fractions = (placement.pull_fraction, placement.hold_fraction, placement.release_fraction)
-    pull = CablePull(stroke, period, *fractions, shape=placement.shape)
+    pull = CablePull(stroke, period, *fractions, placement.ramp_time, shape=placement.shape)
     return PumpChamber(pump, placement.omega, pull, placement.onset)
 
 
 def pump_beat(traces, placement: PumpPlacement, nodes) -> tuple[np.ndarray, ...]:
     """The pump's samples in ``traces`` (one model's), SI whatever the model's units: its
-    pressure (Pa, at its inlet node; ``nodes``: the network's), volume (m^3), cable force (N)
-    and pull (m)."""
+    pressure (Pa, at its inlet node, or its outlet's for a pump with one port; ``nodes``: the
+    network's), volume (m^3), cable force (N) and pull (m)."""
     name = placement.chamber
     pressure_unit, volume_unit = UNIT_SYSTEMS[placement.units][:2]
-    inlet = next(f"{up}:{down}" for up, down in nodes if down == name)
+    touching = [node for node in nodes if name in node]
+    inlet = ":".join(next((node for node in touching if node[1] == name), touching[0]))
     values = traces.values
     return (
         np.asarray(values[f"pressure:{inlet}"]) * pressure_unit,

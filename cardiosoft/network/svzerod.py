@@ -55,6 +55,7 @@ from cardiosoft.network.network import Network, reduce_index
 from cardiosoft.network.ordering import stored_order
 from cardiosoft.network.pump_in_model import PumpPlacement, soft_pump
 from cardiosoft.network.simulation_parameters import Simulation, UnsupportedModel, read_simulation
+from cardiosoft.network.water_column import water_column
 from cardiosoft.valves import ArctanValve, Valve
 
 SUPPORTED_BLOCKS = (
@@ -80,20 +81,22 @@ SUPPORTED_BLOCKS = (
     "LinearElastanceChamber",
 )
 """svZeroDSolver block types the reader takes."""
-EXTENSION_BLOCKS = ("ArctanValve", "SmoothValve", "SoftPump")
+EXTENSION_BLOCKS = ("ArctanValve", "SmoothValve", "SoftPump", "WaterColumn")
 """cardiosoft's own blocks, which ``cardiosoft export --svzerod`` writes and the reader takes
-(two valve laws and a chamber; svZeroDSolver itself has none of them)."""
+(two valve laws, a chamber and the bench's line; svZeroDSolver itself has none of them)."""
 
 
 @dataclass(frozen=True)
 class Model:
     """A read svZeroDSolver model: the network, its simulation settings and its initial values
-    (every variable by svZeroDSolver name)."""
+    (every variable by svZeroDSolver name); ``pumps``: the file's own soft pumps (its
+    ``SoftPump`` chambers, not one placed by ``--pump-chamber``)."""
 
     network: Network
     simulation: Simulation
     initial: dict
     name: str = "model"
+    pumps: tuple[PumpPlacement, ...] = ()
 
     def initial_states(self) -> jnp.ndarray:
         """The blocks' states from the model's initial values."""
@@ -244,6 +247,8 @@ def _boundary_condition(bc: dict, clock: dict):
         p = _values(params, where, CORONARIES[kind], optional, tables)
         make = lambda ports: _checked(coronary, kind, name, p, ports, clock)  # noqa: E731
         return name, make, [p["Pim"]] if is_open else [], not is_open
+    elif kind == "WaterColumn":  # cardiosoft's extension: the bench's line and column
+        return name, (lambda ports: _checked(water_column, name, params, ports)), [], False
     else:
         raise UnsupportedModel(f"block type {kind!r} (boundary condition {name}) is not supported")
     tables = [v for v in kwargs.values() if isinstance(v, TimeTable)]
@@ -365,11 +370,12 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
     simulation = read_simulation(sim, config, period)
     if pump is not None:
         factories[pump.chamber] = _pump_factory(pump, chambers, config, float(period), simulation)
+    pumps = []
     for chamber in chambers:
         if chamber.get("type") == "SoftPump":  # cardiosoft's extension block
-            placed = _placement(chamber)
-            factories[placed.chamber] = _pump_factory(
-                placed, chambers, config, float(period), simulation
+            pumps.append(_placement(chamber))
+            factories[pumps[-1].chamber] = _pump_factory(
+                pumps[-1], chambers, config, float(period), simulation
             )
         elif pump is None or chamber["name"] != pump.chamber:
             factories[chamber["name"]] = _chamber(chamber, float(period), simulation)
@@ -389,7 +395,7 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
     blocks = _checked(join_coronaries, blocks, bool(rates) and not simulation.steady_initial)
     network = Network(tuple(blocks), tuple(connections), float(period))
     initial = _initial(config.get("initial_condition", {}), variable_names(network))
-    model = Model(network, simulation, initial, name or "model")
+    model = Model(network, simulation, initial, name or "model", tuple(pumps))
     try:
         network = reduce_index(network, model.initial_states())
         network = dataclasses.replace(network, order=stored_order(network, model.initial_states()))
@@ -458,9 +464,11 @@ def _pump_factory(pump: PumpPlacement, chambers, config: dict, period: float, si
 
     def make(ports):
         ins, outs = ports
-        if len(ins) != 1 or len(outs) != 1:
-            raise UnsupportedModel(f"--pump-chamber {pump.chamber}: needs one inlet and one outlet")
-        return dataclasses.replace(block, ports=(ins[0], outs[0]))
+        if len(ins) > 1 or len(outs) != 1:
+            raise UnsupportedModel(
+                f"--pump-chamber {pump.chamber}: needs one outlet and at most one inlet"
+            )
+        return dataclasses.replace(block, ports=(*ins, outs[0]))
 
     return make
 
