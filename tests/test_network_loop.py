@@ -195,7 +195,14 @@ def _exported_beat(name, units, beats, config):
 
 
 @pytest.mark.parametrize(
-    "name, units", [("heart", "cgs"), pytest.param("tah", "mmHg", marks=pytest.mark.slow)]
+    "name, units",
+    [
+        ("heart", "cgs"),
+        *(
+            pytest.param(name, units, marks=pytest.mark.slow)
+            for name, units in (("tah", "mmHg"), ("soft-lv", "si"), ("soft-rv", "cgs"))
+        ),
+    ],
 )
 def test_an_exported_scene_read_back_gives_the_scenes_beats(name, units):
     """``cardiosoft export --svzerod`` then ``read``: after 3 beats from the scene's start, every
