@@ -28,10 +28,17 @@ scheme for first-order systems (Jansen, Whiting and Hulbert 2000) with svZeroDSo
   tenth of a period towards it; they end within its Newton tolerance of it, ``y'`` decayed by
   ``|1 - 1/gamma|^31``).
 
-Refused: models whose index was reduced (:func:`~cardiosoft.network.network.reduce_index`,
-which svZeroDSolver steps as they are), the combined heart block (svZeroDSolver resets its
-closed valves' flows after each Newton update, ``post_solve``), ``use_cycle_to_cycle_error``
-without an RCR (whose beats run until the caps settle) and ``output_derivative``.
+A model whose index the network reduced (:func:`~cardiosoft.network.network.reduce_index`: a
+source pinning a capacitor or an inductor) is stepped on its residuals as they are, as
+svZeroDSolver steps it: the scheme's Newton solves the index-2 system, and its start from the
+steady state takes the nodes solved with the states.
+
+Refused: a ``BloodVessel`` with a stenosis ahead of its capacitor (svZeroDSolver steps the
+capacitor's pressure through its nodes' unknowns, a nonlinear function of them: the digits would
+differ by the scheme's error, 2.4e-2 of 1 + |y| on ``pulsatileFlow_CStenosis_steadyPressure``),
+the combined heart block (svZeroDSolver resets its closed valves' flows after each Newton update,
+``post_solve``), ``use_cycle_to_cycle_error`` without an RCR (whose beats run until the caps
+settle) and ``output_derivative``.
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cardiosoft.network.blocks import BloodVessel
 from cardiosoft.network.run import Traces, node_columns
 from cardiosoft.network.simulation_parameters import UnsupportedModel
 from cardiosoft.network.svzerod import Model
@@ -139,8 +147,8 @@ def _start(model: Model):
     net, initial = model.network, model.initial
     x0 = model.initial_states()
     if model.simulation.steady_initial:
-        x0, ok = net.steady_state(x0)
-        return jnp.concatenate([x0, net.node_values(0.0, x0, steady=True)]), bool(ok)
+        x0, z0, ok = net.steady_solution(x0)
+        return jnp.concatenate([x0, z0]), bool(ok)
     names = [f"{up}:{down}" for up, down in net.nodes]
     z0 = [initial[f"pressure:{n}"] for n in names] + [initial[f"flow:{n}"] for n in names]
     return jnp.concatenate([x0, jnp.asarray(z0, dtype=x0.dtype)]), None
@@ -157,10 +165,17 @@ def step_as_svzerod(model: Model) -> Traces:
             f"--as-svzerod: block type {refused[0]!r} is not stepped as svZeroDSolver steps it "
             "(its valves' flows are reset after each Newton update)"
         )
-    if net.reduction is not None:
+    stenosed = [
+        b.name
+        for b in net.blocks
+        if isinstance(b, BloodVessel) and b.resistor_first and b.has_C and b.nonlinear
+    ]
+    if stenosed:
         raise UnsupportedModel(
-            "--as-svzerod: a source pins a state of this model (an index-2 system, which the "
-            "network differentiates once and svZeroDSolver steps as it is)"
+            f"--as-svzerod: vessel {stenosed[0]} has a stenosis ahead of its capacitor, whose "
+            "pressure P_in - (R + S|Q_in|) Q_in svZeroDSolver steps through its nodes' "
+            "unknowns; the network steps that pressure itself, a nonlinear function of them, "
+            "so the digits would differ by the scheme's error"
         )
     if sim.caps or sim.derivative:
         option = "use_cycle_to_cycle_error" if sim.caps else "output_derivative"

@@ -315,8 +315,16 @@ class Network(eqx.Module):
 
     @eqx.filter_jit
     def steady_state(self, x0):
-        """The states and node values with every rate zero under the steady equations: the state
-        svZeroDSolver's steady start-up marches towards (``Solver::setup_initial``)."""
+        """The states with every rate zero under the steady equations: the state svZeroDSolver's
+        steady start-up marches towards (``Solver::setup_initial``); and whether Newton
+        converged."""
+        x, _, ok = self.steady_solution(x0)
+        return x, ok
+
+    def steady_solution(self, x0):
+        """``(x, z, converged)``: the states and the node values of :meth:`steady_state`, solved
+        together (the nodes of a network whose index was reduced are not determined by the
+        steady residuals at given states, :meth:`node_values` ``steady=True``)."""
         n = x0.shape[0]
 
         def g(w, _):
@@ -327,7 +335,7 @@ class Network(eqx.Module):
         kinds = [k for b in self.blocks for k in b.state_kinds()]
         groups = [np.flatnonzero([k == kind for k in kinds]) for kind in set(kinds)]
         w, change = _newton(lambda w: g(w, None), w0, STEADY_NEWTON_STEPS, groups + self._groups(n))
-        return w[:n], change <= NEWTON_TOLERANCE
+        return w[:n], w[n:], change <= NEWTON_TOLERANCE
 
 
 @eqx.filter_jit
