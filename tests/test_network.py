@@ -20,7 +20,7 @@ import pytest
 import svzerod
 
 from cardiosoft import network
-from tests.svzerod_compare import check_agreement
+from tests.svzerod_compare import check_agreement, stepped_as_svzerod
 
 CASES = Path(__file__).parent / "data" / "svzerod"
 NOT_COMPARED = {
@@ -41,13 +41,21 @@ REFINEMENTS = {
     "closedLoopHeart_singleVessel": (4, 16, 64),
     "closedLoopHeart_withCoronaries": (8, 32, 128),
     "closedLoopHeart_singleVessel_decomposed": (2, 4, 8),
+    "chamber_sphere": (16, 64, 256),
 }
 """svzerod's refinements where (1, 4, 16) does not serve: a steep valve's answer at the case's
 own step is outside the asymptotic range (valve_tanh's valve status is 50 % off its value at a
 quarter of the step); the decomposed heart's Newton fails in svzerod at 16x. With coronaries
 the heart's (4, 16, 64) falls just short where the aortic valve opens (sample 4 of the beat):
 the RCA's inflow is 2.27e-5 off there at 64x against an allowance of 2.16e-5, and svzerod
-keeps converging onto ours (7.6e-7 at 256x)."""
+keeps converging onto ours (7.6e-7 at 256x). chamber_sphere starts from initial values that
+are not consistent (every pressure 0): its algebraic variables ring after t = 0, halving each
+step (at 4x its step 6 % of the jump is left at the first output sample), and the first
+samples converge at first order only from 16x on."""
+STEPPED_PEER = ("chamber_sphere",)
+"""Cases that ``svzerod`` 3.2 cannot run (a later ChamberSphere): the peer is svZeroDSolver's
+scheme stepped here (:func:`~tests.svzerod_compare.stepped_as_svzerod`), which gives upstream's
+stored result of the case to 3e-12 (``tests/test_network_gen_alpha.py``)."""
 STEP_VALVES = ("closedLoopHeart_singleVessel_decomposed",)
 """Cases whose tanh valves are steps (steepness 1e4 per mmHg): their valve status is not
 compared, their pressures are."""
@@ -60,7 +68,9 @@ forms below."""
 
 def check_against_svzerod(name: str) -> None:
     config = json.loads((CASES / f"{name}.json").read_text())
-    check_agreement(config, name, REFINEMENTS.get(name, (1, 4, 16)), name in STEP_VALVES)
+    peer = stepped_as_svzerod if name in STEPPED_PEER else network.run_svzerod
+    refinements = REFINEMENTS.get(name, (1, 4, 16))
+    check_agreement(config, name, refinements, name in STEP_VALVES, peer=peer)
 
 
 @pytest.mark.parametrize("name", FAST)

@@ -304,3 +304,91 @@ class Chamber(Block):
 
     def outputs(self, t, x, P, Q):
         return {f"Vc:{self.name}": x[0]}
+
+
+SPHERE_PARAMETERS = (
+    "rho", "thick0", "radius0", "W1", "W2", "eta", "sigma_max", "alpha_max", "alpha_min",
+    "tsys", "tdias", "steepness",
+)  # fmt: skip
+"""``ChamberSphere``'s parameters, in upstream's order (``ChamberSphere.h``)."""
+
+
+class ChamberSphere(Block):
+    """svZeroDSolver's spherical chamber (``ChamberSphere.cpp``; Caruel et al. 2013, eq. 13a-b,
+    with the active stress of Pfaller et al. 2019, eq. 12-16): a thin spherical shell of
+    reference radius ``r0`` and thickness ``d0`` whose wall moves. Ports: inlet, outlet, at one
+    pressure. States: the radial displacement r, its velocity v, the active stress tau and the
+    volume change V (``radius:NAME``, ``velo:NAME``, ``tau:NAME``, ``volume:NAME``); the
+    spherical stress S (``stress:NAME``) is algebraic. With ``R = r0 + r``:
+
+    - momentum: ``rho d0 dv/dt = R (P_out R - S d0) / r0^2``;
+    - stress: ``S = tau + 2 (v eta (2 r0^12 + R^12) + 2 R^5 (R^6 - r0^6) (W1 r0^2 + W2 R^2))
+      / (r0^2 R^11)``;
+    - ``dr/dt = v``, ``dV/dt = 4 pi R^2 v``, ``Q_in - Q_out = dV/dt``, ``P_in = P_out``;
+    - active stress: ``dtau/dt = -|a| tau + sigma_max max(a, 0)``, ``a = f alpha_max + (1 - f)
+      alpha_min``, ``f = (1 + tanh((t - tsys) / steepness)) (1 - tanh((t - tdias) /
+      steepness)) / 4``, t folded with ``fmod(t, period)``.
+
+    Upstream's stress equation takes ``dr/dt`` from the scheme where this takes v: the two are
+    one by ``dr/dt = v`` at every solution. Its ``volume`` is the change from its start, so it
+    has no chamber record (an ejection fraction needs the volume itself).
+    """
+
+    p: dict
+    period: jnp.ndarray = eqx.field(converter=jnp.asarray)
+    kind = "ChamberSphere"
+    n_states = 4
+    nonlinear = True
+
+    def state_kinds(self):
+        return ("volume", "flow", "pressure", "volume")
+
+    def internal_names(self):
+        return tuple(f"{v}:{self.name}" for v in ("radius", "velo", "stress", "tau", "volume"))
+
+    def stress(self, x):
+        """The spherical stress S (the model's units) at the states ``x``."""
+        p = self.p
+        r0 = p["radius0"]
+        big = r0 + x[0]
+        viscous = x[1] * p["eta"] * (2.0 * r0**12 + big**12)
+        elastic = 2.0 * big**5 * (big**6 - r0**6) * (p["W1"] * r0**2 + p["W2"] * big**2)
+        return x[2] + 2.0 * (viscous + elastic) / (r0**2 * big**11)
+
+    def activation(self, t):
+        """``(|a|, max(a, 0))`` at time t."""
+        p = self.p
+        tau = jnp.fmod(t, self.period)
+        rising = 0.5 * (1.0 + jnp.tanh((tau - p["tsys"]) / p["steepness"]))
+        falling = 0.5 * (1.0 - jnp.tanh((tau - p["tdias"]) / p["steepness"]))
+        f = rising * falling
+        a = p["alpha_max"] * f + p["alpha_min"] * (1.0 - f)
+        return jnp.abs(a), jnp.maximum(a, 0.0)
+
+    def _volume_rate(self, x):
+        return 4.0 * jnp.pi * (self.p["radius0"] + x[0]) ** 2 * x[1]
+
+    def residuals(self, t, x, P, Q, steady=False):
+        return jnp.stack([P[0] - P[1], Q[0] - Q[1] - self._volume_rate(x)])
+
+    def rates(self, t, x, P, Q, steady=False):
+        p = self.p
+        big = p["radius0"] + x[0]
+        momentum = big * (P[1] * big - self.stress(x) * p["thick0"]) / p["radius0"] ** 2
+        a, a_plus = self.activation(t)
+        return jnp.stack(
+            [
+                x[1],
+                momentum / (p["rho"] * p["thick0"]),
+                -a * x[2] + p["sigma_max"] * a_plus,
+                self._volume_rate(x),
+            ]
+        )
+
+    def states_from(self, values):
+        return [values[f"{v}:{self.name}"] for v in ("radius", "velo", "tau", "volume")]
+
+    def outputs(self, t, x, P, Q):
+        names = self.internal_names()
+        values = (x[0], x[1], self.stress(x), x[2], x[3])
+        return dict(zip(names, values, strict=True))
