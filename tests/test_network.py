@@ -24,6 +24,12 @@ from tests.svzerod_compare import check_agreement, stepped_as_svzerod
 
 CASES = Path(__file__).parent / "data" / "svzerod"
 NOT_COMPARED = {
+    "chamber_elastance_inductor": "its ventricle holds 96 ml and moves by 0.0024 ml a beat, "
+    "so 1e-7 of that range is 2.5e-12 of the volume: the reference preset does not reach it "
+    "within its step budget (964,105 steps over the 30 beats, behind a steep valve, unsolved), "
+    "and at rtol 1e-8 the volume drifts from svzerod's converged answer by 4.5e-6 ml a beat; "
+    "stepped as svZeroDSolver steps it, it gives svzerod's digits to 3.3e-13 "
+    "(tests/test_network_gen_alpha.py)",
     "pulsatileFlow_R_RCR_mismatchPeriod": "refused, as svzerod refuses it",
     "closedLoopHeart_singleVessel_mistmatchPeriod": "refused, as svzerod refuses it",
     "pulsatileFlow_CRL": "its inflow is C dP/dt of a piecewise-linear table: at the table's "

@@ -31,7 +31,8 @@ STEPPED = (
     "closedLoopHeart_singleVessel_decomposed", "closed_loop_two_hill",
     "pulsatileFlow_R_RCR", "pulsatileFlow_R_RCR_mean", "pulsatileFlow_R_RCR_mean_variable",
     "pulsatileFlow_R_RCR_variable", "pulsatileFlow_R_coronary", "pulsatileFlow_R_coronary_varres",
-    "pulsatileFlow_CRL", "steadyFlow_RL_R",
+    "pulsatileFlow_CRL", "steadyFlow_RL_R", "chamber_elastance_inductor",
+    "piecewise_Chamber_and_Valve",
     "pulsatileFlow_bifurcationR_RCR_cycle_error", "steadyFlow_RC_R", "steadyFlow_RLC_R",
     "steadyFlow_R_R", "steadyFlow_R_RCR", "steadyFlow_R_coronary", "steadyFlow_R_steadyPressure",
     "steadyFlow_bifurcationR_R1", "steadyFlow_bifurcationR_R1_blockNames",
@@ -42,7 +43,8 @@ STEPPED = (
 ``chamber_sphere``, which ``svzerod`` cannot run: checked against upstream's stored result).
 ``pulsatileFlow_CRL`` and ``steadyFlow_RL_R`` are index-2 systems (a source pins a capacitor,
 an inductor): stepped on the network's residuals as they are, not on the reduced ones, as
-svZeroDSolver steps them."""
+svZeroDSolver steps them. ``chamber_elastance_inductor`` and ``piecewise_Chamber_and_Valve``
+start from svZeroDSolver's steady start-up marched through their chambers' activation."""
 QUICK = ("valve_tanh",)
 """A nonlinear valve and its status under a time table (each case compiles for 5-10 s); the
 rest run with the slow tests: a Windkessel's state, a closed loop started from its initial

@@ -75,6 +75,10 @@ class Block(eqx.Module):
     """Whether its residuals are nonlinear in the nodes' unknowns (then Newton solves them)."""
     kind = ""
     """svZeroDSolver's type name of the block, for messages and the writer."""
+    keeps_time = False
+    """Whether its equations keep time in svZeroDSolver's steady start-up (a chamber's
+    activation): a network with one has no steady state, and its start-up is marched
+    (:func:`cardiosoft.network.gen_alpha.steady_march`)."""
     vessel = False
     """Whether blood flows into it as into a vessel (a vessel, an outlet's resistance, RCR or
     coronary bed): its record is its inlet's pressure and flow

@@ -26,7 +26,9 @@ scheme for first-order systems (Jansen, Whiting and Hulbert 2000) with svZeroDSo
 - The start is svZeroDSolver's: the model's initial values as given (not made consistent) with
   ``y' = 0``, or, with ``steady_initial``, the steady state (svZeroDSolver marches 31 steps of a
   tenth of a period towards it; they end within its Newton tolerance of it, ``y'`` decayed by
-  ``|1 - 1/gamma|^31``).
+  ``|1 - 1/gamma|^31``). A model with a chamber has no steady state (its activation keeps
+  time): its start-up is marched here as svZeroDSolver marches it (:func:`steady_march`), ``y``,
+  ``y'`` and the internal variables where the march leaves them.
 
 A model whose index the network reduced (:func:`~cardiosoft.network.network.reduce_index`: a
 source pinning a capacitor or an inductor) is stepped on its residuals as they are, as
@@ -69,16 +71,19 @@ def coefficients(rho: float) -> tuple[float, float, float]:
     return alpha_m, alpha_f, 0.5 + alpha_m - alpha_f
 
 
-def _residual(net, t, y, ydot):
+def _residual(net, t, y, ydot, steady):
     n = net.n_states
     x, z = y[:n], y[n:]
-    return jnp.concatenate([ydot[:n] - net.rates(t, x, z), net.residuals(t, x, z)])
+    return jnp.concatenate(
+        [ydot[:n] - net.rates(t, x, z, steady), net.residuals(t, x, z, steady)]
+    )
 
 
 @eqx.filter_jit
-def _steps(net, y0, ydot0, dt, n_steps: int, rho: float):
-    """``n_steps`` steps of ``dt`` from ``(y0, ydot0)`` at t = 0: ``y`` at every step (the start
-    first) and whether Newton converged at each."""
+def _steps(net, y0, ydot0, dt, n_steps: int, rho: float, steady: bool = False):
+    """``n_steps`` steps of ``dt`` from ``(y0, ydot0)`` at t = 0 (``steady``: of the steady
+    start-up's equations): ``y`` at every step (the start first), the last ``y'``, and whether
+    Newton converged at every step."""
     alpha_m, alpha_f, gamma = coefficients(rho)
 
     def step(carry, n):
@@ -90,7 +95,7 @@ def _steps(net, y0, ydot0, dt, n_steps: int, rho: float):
 
         def residual(ydot):  # at the generalized mid-point; twice, as value and as aux
             y_af = y_old + alpha_f * (advanced(ydot) - y_old)
-            r = _residual(net, t_af, y_af, ydot_old + alpha_m * (ydot - ydot_old))
+            r = _residual(net, t_af, y_af, ydot_old + alpha_m * (ydot - ydot_old), steady)
             return r, r
 
         def newton(state):
@@ -110,8 +115,8 @@ def _steps(net, y0, ydot0, dt, n_steps: int, rho: float):
         y = advanced(ydot)
         return (y, ydot), (y, i < MAX_NEWTON)
 
-    _, (ys, converged) = jax.lax.scan(step, (y0, ydot0), jnp.arange(n_steps))
-    return jnp.concatenate([y0[None], ys]), jnp.all(converged)
+    (_, ydot), (ys, converged) = jax.lax.scan(step, (y0, ydot0), jnp.arange(n_steps))
+    return jnp.concatenate([y0[None], ys]), ydot, jnp.all(converged)
 
 
 def _output_names(net) -> list[str]:
@@ -142,16 +147,52 @@ def _internal(net, ys, first: dict, dt, rho: float) -> dict:
     return {k: jnp.concatenate([first[k][None], rest[k]]) for k in g}
 
 
-def _start(model: Model):
-    """svZeroDSolver's first ``y``: the states and the nodes as given, or the steady state."""
+STEADY_MARCH = (31, 10)
+"""svZeroDSolver's steady start-up (``Solver::setup_initial``): 31 steps of a tenth of a period,
+on the steady equations, from the initial values as given."""
+
+
+def marches(net) -> bool:
+    """Whether the steady start-up of ``net`` is marched here as svZeroDSolver marches it: a
+    network with a block whose equations keep time in the start-up (a chamber's activation,
+    :attr:`~cardiosoft.network.blocks.Block.keeps_time`), which has no steady state to solve
+    for."""
+    return any(b.keeps_time for b in net.blocks)
+
+
+def steady_march(net, y0, rho: float):
+    """svZeroDSolver's steady start-up of ``net`` from ``y0`` (:data:`STEADY_MARCH`; ``rho``:
+    the model's ``rho_infty``): ``y`` at every step, the last ``y'``, and whether every
+    step's Newton converged."""
+    steps, parts = STEADY_MARCH
+    return _steps(net, y0, jnp.zeros_like(y0), net.period / parts, steps, rho, True)
+
+
+def given_start(model: Model) -> jnp.ndarray:
+    """``y`` as the model's initial values give it: the states, then the nodes' pressures and
+    flows (not made consistent)."""
     net, initial = model.network, model.initial
     x0 = model.initial_states()
-    if model.simulation.steady_initial:
-        x0, z0, ok = net.steady_solution(x0)
-        return jnp.concatenate([x0, z0]), bool(ok)
     names = [f"{up}:{down}" for up, down in net.nodes]
     z0 = [initial[f"pressure:{n}"] for n in names] + [initial[f"flow:{n}"] for n in names]
-    return jnp.concatenate([x0, jnp.asarray(z0, dtype=x0.dtype)]), None
+    return jnp.concatenate([x0, jnp.asarray(z0, dtype=x0.dtype)])
+
+
+def _start(model: Model):
+    """svZeroDSolver's first ``(y, y')``, its internal variables there, and whether its steady
+    start-up converged (None without one): the initial values as given with ``y' = 0``; the
+    steady start-up marched (:func:`marches`); or the steady state solved for, ``y' = 0``."""
+    net, sim = model.network, model.simulation
+    y0 = given_start(model)
+    given = {k: jnp.asarray(model.initial[k], y0.dtype) for k in _output_names(net)}
+    if not sim.steady_initial:
+        return y0, jnp.zeros_like(y0), given, None
+    if marches(net):
+        ys, ydot, ok = steady_march(net, y0, sim.rho_infty)
+        internal = _internal(net, ys, given, net.period / STEADY_MARCH[1], sim.rho_infty)
+        return ys[-1], ydot, {k: v[-1] for k, v in internal.items()}, bool(ok)
+    x0, z0, ok = net.steady_solution(model.initial_states())
+    return jnp.concatenate([x0, z0]), jnp.zeros_like(y0), net.outputs(0.0, x0, z0), bool(ok)
 
 
 def step_as_svzerod(model: Model) -> Traces:
@@ -180,15 +221,11 @@ def step_as_svzerod(model: Model) -> Traces:
     if sim.caps or sim.derivative:
         option = "use_cycle_to_cycle_error" if sim.caps else "output_derivative"
         raise UnsupportedModel(f"--as-svzerod: simulation option {option!r} is not supported")
-    y0, steady_start = _start(model)
+    y0, ydot0, first, steady_start = _start(model)
     n_steps = sim.steps_per_cycle * sim.cycles
     dt = net.period / sim.steps_per_cycle
-    ys, converged = _steps(net, y0, jnp.zeros_like(y0), dt, n_steps, sim.rho_infty)
+    ys, _, converged = _steps(net, y0, ydot0, dt, n_steps, sim.rho_infty)
     n = net.n_states
-    if steady_start is None:  # the internal variables as given (arrays: not static)
-        first = {k: jnp.asarray(model.initial[k], ys.dtype) for k in _output_names(net)}
-    else:  # as the steady start-up leaves them: at the steady state's
-        first = net.outputs(0.0, ys[0, :n], ys[0, n:])
     internal = _internal(net, ys, first, dt, sim.rho_infty)
     t_all = dt * np.arange(n_steps + 1)
     keep = slice(None) if sim.output_all_cycles else slice(-sim.points_per_cycle, None)

@@ -264,6 +264,7 @@ class Chamber(Block):
     activation: Activation
     law: str = eqx.field(static=True)
     has_L: bool = eqx.field(static=True)
+    keeps_time = True
 
     @property
     def kind(self):
@@ -339,6 +340,7 @@ class ChamberSphere(Block):
     kind = "ChamberSphere"
     n_states = 4
     nonlinear = True
+    keeps_time = True
 
     def state_kinds(self):
         return ("volume", "flow", "pressure", "volume")

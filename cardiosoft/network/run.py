@@ -188,9 +188,15 @@ def simulate(
     def each_stored(jitted, *axes):  # likewise, one network's program from a command's store
         return functools.partial(stored_call, jitted) if variants is None else each(jitted, *axes)
 
+    from cardiosoft.network.gen_alpha import given_start, marches, steady_march
+
     x0 = model.initial_states()
     steady_start = None
-    if sim.steady_initial:
+    if sim.steady_initial and marches(model.network):  # svZeroDSolver's march, as it goes
+        ys, _, ok = each(steady_march, 0, None, None)(net, given_start(model), sim.rho_infty)
+        x0 = ys[..., -1, : x0.shape[0]]
+        steady_start = bool(jnp.all(ok))
+    elif sim.steady_initial:
         x0, ok = each(_steady_state, 0, None)(net, x0)
         steady_start = bool(jnp.all(ok))
     x0 = each(_consistent, 0, 0 if sim.steady_initial else None)(net, x0)

@@ -13,6 +13,9 @@ The reader follows svZeroDSolver's own definitions (``src/solve/SimulationParame
   replaced by the mean of its samples. svZeroDSolver marches towards that state by 31 steps of
   a tenth of a period; this reader solves for it (the two differ by what 3.1 periods of a
   backward-Euler-like march leave of the slowest transient, which the beats that follow damp).
+  A model with a chamber has no steady state (its activation keeps time in the start-up): its
+  start-up is marched as svZeroDSolver marches it (:func:`~cardiosoft.network.gen_alpha.
+  steady_march`), refused beside blocks whose capacitors the start-up switches off.
 
 A block type, a simulation option or a parameter this reader does not support is refused in one
 line (:class:`UnsupportedModel`) that names it. Keys that start with ``_`` are comments.
@@ -280,7 +283,7 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
     period = None
 
     # svZeroDSolver's order: vessels, boundary conditions, junctions, closed loop, valves
-    vessel_names, spheres, clock = {}, [], {}
+    vessel_names, clock = {}, {}
     for v in config.get("vessels", []):
         vname, kind = v["vessel_name"], v.get("zero_d_element_type", "BloodVessel")
         vessel_names[v["vessel_id"]] = vname
@@ -297,7 +300,6 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
             )
         elif kind == "ChamberSphere":
             p = _arrays(_values(values, where, SPHERE_PARAMETERS), SPHERE_PARAMETERS)
-            spheres.append(vname)
             factories[vname] = lambda ports, vname=vname, p=p: _two_ports(
                 ChamberSphere, vname, {"p": p, "period": clock["period"]}, ports
             )
@@ -377,12 +379,6 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
         )
     period = clock["period"] = float(period or given_period or 1.0)
     simulation = read_simulation(sim, config, period)
-    if spheres and simulation.steady_initial:
-        raise UnsupportedModel(
-            f"ChamberSphere {spheres[0]} with steady_initial: svZeroDSolver's start-up marches "
-            "the chamber's activation through 3.1 beats at a tenth of a beat a step, which the "
-            "network does not reproduce; set steady_initial to false"
-        )
     if pump is not None:
         factories[pump.chamber] = _pump_factory(pump, chambers, config, float(period), simulation)
     pumps = []
@@ -393,7 +389,7 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
                 pumps[-1], chambers, config, float(period), simulation
             )
         elif pump is None or chamber["name"] != pump.chamber:
-            factories[chamber["name"]] = _chamber(chamber, float(period), simulation)
+            factories[chamber["name"]] = _chamber(chamber, float(period))
     named = {x for c in connections for x in c}
     if named - set(factories):
         raise UnsupportedModel(
@@ -408,6 +404,7 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
     blocks = [make(ports(block_name)) for block_name, make in factories.items()]
     rates = [k for k in config.get("initial_condition_d") or {} if not k.startswith("_")]
     blocks = _checked(join_coronaries, blocks, bool(rates) and not simulation.steady_initial)
+    _check_march(blocks, simulation)
     network = Network(tuple(blocks), tuple(connections), float(period))
     initial = _initial(config.get("initial_condition", {}), variable_names(network))
     model = Model(network, simulation, initial, name or "model", tuple(pumps))
@@ -419,17 +416,31 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
     return dataclasses.replace(model, network=network)
 
 
-def _chamber(chamber: dict, period: float, simulation: Simulation):
+SWITCHED_IN_STEADY = ("RCR", "ClosedLoopRCR", *CORONARIES)
+"""Blocks whose capacitors svZeroDSolver's steady start-up switches off (``Model::to_steady``,
+and the coronaries' steady equations); the network solves their steady state instead."""
+
+
+def _check_march(blocks, simulation: Simulation) -> None:
+    """A steady start-up that must be marched (a chamber's activation keeps time in it,
+    :func:`cardiosoft.network.gen_alpha.marches`) is marched on the blocks' own equations:
+    refused with a block whose start-up equations switch its capacitors off."""
+    timed = [b for b in blocks if b.keeps_time]
+    switched = [b for b in blocks if b.kind in SWITCHED_IN_STEADY]
+    if simulation.steady_initial and timed and switched:
+        raise UnsupportedModel(
+            f"{timed[0].kind} {timed[0].name} with steady_initial and the {switched[0].kind} "
+            f"{switched[0].name}: svZeroDSolver marches the start-up through the chamber's "
+            f"activation with the {switched[0].kind}'s capacitors switched off, which the "
+            "network does not reproduce; set steady_initial to false"
+        )
+
+
+def _chamber(chamber: dict, period: float):
     """The factory of a chamber with an activation (``create_chambers``)."""
     name, kind = chamber["name"], chamber["type"]
     if kind not in CHAMBER_PARAMETERS:
         raise UnsupportedModel(f"block type {kind!r} (chamber {name}) is not supported")
-    if simulation.steady_initial:
-        raise UnsupportedModel(
-            f"{kind} {name} with steady_initial: svZeroDSolver's start-up marches the chamber's "
-            "activation through 3.1 beats at a tenth of a beat a step, which the network does "
-            "not reproduce; set steady_initial to false"
-        )
     p = _arrays(
         _values(chamber.get("values", {}), f"{kind} {name}", CHAMBER_PARAMETERS[kind]),
         CHAMBER_PARAMETERS[kind],
