@@ -57,7 +57,7 @@ def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
     scene's rest. ``pump``: its surrogate's name or path (default the scene's). Raises
     ``ValueError`` for a scene this writer cannot express, naming what."""
     from cardiosoft.network.export import model_file, pump_entry
-    from cardiosoft.network.pump_in_model import UNIT_SYSTEMS, PumpPlacement, pump_law
+    from cardiosoft.network.pump_in_model import UNIT_SYSTEMS, pump_law
     from cardiosoft.scene import SHELL_EFFECTS
     from cardiosoft.units import bpm
 
@@ -89,17 +89,7 @@ def to_svzerod(scene, units: str = "cgs", beats: int = 10, pump=None) -> dict:
     p, v = UNIT_SYSTEMS[units][:2]
     resistance = v / p  # SI -> the model's units, for a resistance
     period = 1.0 / (scene.bpm * bpm)
-    placement = PumpPlacement(
-        "pump",
-        units,
-        omega=scene.omega,
-        shortening=scene.shortening,
-        surrogate=pump or scene.pump,
-        shape=scene.shape,
-        pull_fraction=scene.pull_fraction,
-        hold_fraction=scene.hold_fraction,
-        release_fraction=scene.release_fraction,
-    )
+    placement = _placement(scene, units, pump)
     start_volume = pump_law(placement, period).start_volume(preload.p_atrial)
 
     def valve(name, law, up, down, series=0.0):
@@ -149,34 +139,13 @@ def _bench(scene, units: str, beats: int, pump=None) -> dict:
     from cardiosoft.batch import scene_circuit
     from cardiosoft.circulation import BENCH_EFFECTS
     from cardiosoft.network.export import model_file, pump_entry
-    from cardiosoft.network.pump_in_model import UNIT_SYSTEMS, PumpPlacement
+    from cardiosoft.network.pump_in_model import UNIT_SYSTEMS
     from cardiosoft.pump import load
     from cardiosoft.units import bpm, mm, mmHg
 
     head = scene.afterloads[0]
     start = scene_circuit(scene, load(pump or scene.pump), head).init()
-    viscoelastic = scene.has("shell_viscoelasticity")
-    placement = PumpPlacement(
-        "pump",
-        units,
-        omega=scene.omega,
-        shortening=scene.shortening,
-        surrogate=pump or scene.pump,
-        shape=scene.shape,
-        pull_fraction=scene.pull_fraction,
-        hold_fraction=scene.hold_fraction,
-        release_fraction=scene.release_fraction,
-        ramp_time=scene.ramp_time,
-        shell_viscoelasticity={
-            "stiffness_ratio": scene.viscoelastic_ratio,
-            "relaxation_time_s": scene.relaxation_time,
-        }
-        if viscoelastic
-        else None,
-        cable_friction={"exponent": scene.cable_friction}
-        if scene.has("cable_friction")
-        else None,
-    )
+    placement = _placement(scene, units, pump)
     column = {
         "units": units,
         "head_mmHg": head / mmHg,
@@ -188,7 +157,7 @@ def _bench(scene, units: str, beats: int, pump=None) -> dict:
     }
     volume_unit = UNIT_SYSTEMS[units][1]
     initial = {"Vc:pump": float(start["volume"]) / volume_unit, "column_volume:column": 0.0}
-    if viscoelastic:
+    if placement.shell_viscoelasticity is not None:
         initial["Vd:pump"] = float(start["relaxation"]) / volume_unit
     parts = {
         "boundary_conditions": [
@@ -211,3 +180,32 @@ def _bench(scene, units: str, beats: int, pump=None) -> dict:
         f"{head / mmHg:g} mmHg ('cardiosoft export --afterload MMHG' writes another)"
     )
     return model
+
+
+def _placement(scene, units: str, pump=None):
+    """The file's ``SoftPump`` ``pump``: the scene's design, pull and shell effects (each None
+    where the scene has none), in ``units``, with ``pump`` (default the scene's surrogate)."""
+    from cardiosoft.network.pump_in_model import PumpPlacement
+
+    viscoelastic = scene.has("shell_viscoelasticity")
+    return PumpPlacement(
+        "pump",
+        units,
+        omega=scene.omega,
+        shortening=scene.shortening,
+        surrogate=pump or scene.pump,
+        shape=scene.shape,
+        pull_fraction=scene.pull_fraction,
+        hold_fraction=scene.hold_fraction,
+        release_fraction=scene.release_fraction,
+        ramp_time=scene.ramp_time,
+        shell_viscoelasticity={
+            "stiffness_ratio": scene.viscoelastic_ratio,
+            "relaxation_time_s": scene.relaxation_time,
+        }
+        if viscoelastic
+        else None,
+        cable_friction={"exponent": scene.cable_friction}
+        if scene.has("cable_friction")
+        else None,
+    )

@@ -321,6 +321,7 @@ class Network(eqx.Module):
         x, _, ok = self.steady_solution(x0)
         return x, ok
 
+    @eqx.filter_jit
     def steady_solution(self, x0):
         """``(x, z, converged)``: the states and the node values of :meth:`steady_state`, solved
         together (the nodes of a network whose index was reduced are not determined by the
