@@ -79,6 +79,10 @@ class Block(eqx.Module):
     """Whether its equations keep time in svZeroDSolver's steady start-up (a chamber's
     activation): a network with one has no steady state, and its start-up is marched
     (:func:`cardiosoft.network.gen_alpha.steady_march`)."""
+    marchable = True
+    """Whether svZeroDSolver's steady start-up of it is reproduced step for step
+    (:meth:`mass_flux`); not the coronaries' and the combined heart's, whose ``steady``
+    equations here give their steady state only."""
     vessel = False
     """Whether blood flows into it as into a vessel (a vessel, an outlet's resistance, RCR or
     coronary bed): its record is its inlet's pressure and flow
@@ -86,6 +90,14 @@ class Block(eqx.Module):
 
     def rates(self, t, x, P, Q, steady=False):
         return _none(P)
+
+    def mass_flux(self, t, x, P, Q, steady=False):
+        """Its states' equations as svZeroDSolver writes them, ``m dx/dt = f``: ``(m, f)``, an
+        entry a state; ``m = 1`` and ``f`` the rates unless a capacitor is switched off in the
+        steady start-up (then ``m = 0``: an algebraic equation). What svZeroDSolver's scheme
+        solves (:mod:`cardiosoft.network.gen_alpha`)."""
+        rates = self.rates(t, x, P, Q, steady)
+        return jnp.ones_like(rates), rates
 
     def states_from(self, values: dict) -> list[float]:
         return []
@@ -240,6 +252,12 @@ class RCR(Block):
         outflow = (x[0] - self.Pd(t, steady)) / self.Rd(t, steady)
         return jnp.stack([(Q[0] - outflow) / self.C(t, steady)])
 
+    def mass_flux(self, t, x, P, Q, steady=False):
+        flux = Q[0] - (x[0] - self.Pd(t, steady)) / self.Rd(t, steady)
+        # svZeroDSolver's start-up switches C off (Model::to_steady)
+        mass = jnp.zeros_like(flux) if steady else self.C(t) + jnp.zeros_like(flux)
+        return jnp.stack([mass]), jnp.stack([flux])
+
     def states_from(self, values):
         return [values[f"pressure_c:{self.name}"]]
 
@@ -269,6 +287,12 @@ class ClosedLoopRCR(Block):
 
     def rates(self, t, x, P, Q, steady=False):
         return jnp.stack([(Q[0] - Q[1]) / self.C])
+
+    def mass_flux(self, t, x, P, Q, steady=False):
+        flux = Q[0] - Q[1]
+        # svZeroDSolver's start-up switches C off (Model::to_steady)
+        mass = jnp.zeros_like(flux) if steady else self.C + jnp.zeros_like(flux)
+        return jnp.stack([mass]), jnp.stack([flux])
 
     def states_from(self, values):
         return [values[f"P_c:{self.name}"]]

@@ -120,6 +120,7 @@ class OpenLoopCoronary(Block):
     Ram: ConstantResistance | CyclicResistance
     vessel = True
     n_states = 3
+    marchable = False
 
     @property
     def kind(self):
@@ -245,6 +246,7 @@ class HeartAndCoronaries(Block):
     heart: ClosedLoopHeart
     coronaries: tuple[ClosedLoopCoronary, ...]
     kind = "ClosedLoopHeartAndPulmonary"
+    marchable = False
 
     @property
     def n_states(self):

@@ -24,11 +24,14 @@ scheme for first-order systems (Jansen, Whiting and Hulbert 2000) with svZeroDSo
 - Newton runs to convergence (svZeroDSolver stops at ``absolute_tolerance`` of its residuals,
   1e-8 by default: the iterates differ below that).
 - The start is svZeroDSolver's: the model's initial values as given (not made consistent) with
-  ``y' = 0``, or, with ``steady_initial``, the steady state (svZeroDSolver marches 31 steps of a
-  tenth of a period towards it; they end within its Newton tolerance of it, ``y'`` decayed by
-  ``|1 - 1/gamma|^31``). A model with a chamber has no steady state (its activation keeps
-  time): its start-up is marched here as svZeroDSolver marches it (:func:`steady_march`), ``y``,
-  ``y'`` and the internal variables where the march leaves them.
+  ``y' = 0``, or, with ``steady_initial``, its steady start-up marched as svZeroDSolver marches
+  it (:func:`steady_march`: 31 steps of a tenth of a period on the steady equations, an RCR's
+  capacitor switched off), ``y``, ``y'`` and the internal variables where the march leaves
+  them. A coronary's or the combined heart's start-up is not reproduced step for step (their
+  steady equations here give their steady state only): there the steady state is solved for,
+  with ``y' = 0`` (svZeroDSolver's march ends within its Newton tolerance of it, ``y'`` decayed
+  by ``|1 - 1/gamma|^31``).
+- ``output_derivative``: every variable's ``y'`` as the scheme leaves it, ``ydot:NAME``.
 
 A model whose index the network reduced (:func:`~cardiosoft.network.network.reduce_index`: a
 source pinning a capacitor or an inductor) is stepped on its residuals as they are, as
@@ -40,7 +43,7 @@ capacitor's pressure through its nodes' unknowns, a nonlinear function of them: 
 differ by the scheme's error, 2.4e-2 of 1 + |y| on ``pulsatileFlow_CStenosis_steadyPressure``),
 the combined heart block (svZeroDSolver resets its closed valves' flows after each Newton update,
 ``post_solve``), ``use_cycle_to_cycle_error`` without an RCR (whose beats run until the caps
-settle) and ``output_derivative``.
+settle) and ``output_derivative`` after a start-up solved for, not marched.
 """
 
 from __future__ import annotations
@@ -74,15 +77,14 @@ def coefficients(rho: float) -> tuple[float, float, float]:
 def _residual(net, t, y, ydot, steady):
     n = net.n_states
     x, z = y[:n], y[n:]
-    return jnp.concatenate(
-        [ydot[:n] - net.rates(t, x, z, steady), net.residuals(t, x, z, steady)]
-    )
+    mass, flux = net.mass_flux(t, x, z, steady)
+    return jnp.concatenate([mass * ydot[:n] - flux, net.residuals(t, x, z, steady)])
 
 
 @eqx.filter_jit
 def _steps(net, y0, ydot0, dt, n_steps: int, rho: float, steady: bool = False):
     """``n_steps`` steps of ``dt`` from ``(y0, ydot0)`` at t = 0 (``steady``: of the steady
-    start-up's equations): ``y`` at every step (the start first), the last ``y'``, and whether
+    start-up's equations): ``y`` and ``y'`` at every step (the start first), and whether
     Newton converged at every step."""
     alpha_m, alpha_f, gamma = coefficients(rho)
 
@@ -113,10 +115,11 @@ def _steps(net, y0, ydot0, dt, n_steps: int, rho: float, steady: bool = False):
         start = (0, predicted, jnp.asarray(jnp.inf, dtype=y_old.dtype))
         i, ydot, _ = jax.lax.while_loop(going, newton, start)
         y = advanced(ydot)
-        return (y, ydot), (y, i < MAX_NEWTON)
+        return (y, ydot), (y, ydot, i < MAX_NEWTON)
 
-    (_, ydot), (ys, converged) = jax.lax.scan(step, (y0, ydot0), jnp.arange(n_steps))
-    return jnp.concatenate([y0[None], ys]), ydot, jnp.all(converged)
+    _, (ys, ydots, converged) = jax.lax.scan(step, (y0, ydot0), jnp.arange(n_steps))
+    first = (jnp.concatenate([y0[None], ys]), jnp.concatenate([ydot0[None], ydots]))
+    return *first, jnp.all(converged)
 
 
 def _output_names(net) -> list[str]:
@@ -124,27 +127,34 @@ def _output_names(net) -> list[str]:
 
 
 @eqx.filter_jit
-def _internal(net, ys, first: dict, dt, rho: float) -> dict:
-    """The blocks' internal variables at every step, as svZeroDSolver's stepping leaves them. Each
-    is one of its unknowns, fixed at the stage ``t_n + alpha_f dt`` by its block's equation and
-    carried to the step's end linearly: ``v_(n+1) = v_n + (g(stage) - v_n) / alpha_f``. For one
-    linear in ``y`` (a capacitor's pressure) that is ``g(y_(n+1))``; for one that is not (a valve's
-    status, ``(1 + tanh(...)) / 2``) it is what svZeroDSolver reports, not ``g(y_(n+1))``."""
-    _, alpha_f, _ = coefficients(rho)
+def _internal(net, ys, first: dict, first_rates: dict, dt, rho: float):
+    """The blocks' internal variables at every step, as svZeroDSolver's stepping leaves them, and
+    their rates. Each is one of its unknowns, fixed at the stage ``t_n + alpha_f dt`` by its
+    block's equation and carried to the step's end linearly: ``v_(n+1) = v_n + (g(stage) - v_n)
+    / alpha_f``. For one linear in ``y`` (a capacitor's pressure) that is ``g(y_(n+1))``; for one
+    that is not (a valve's status, ``(1 + tanh(...)) / 2``) it is what svZeroDSolver reports, not
+    ``g(y_(n+1))``. Its rate follows the scheme's update, ``v_(n+1) = v_n + dt v'_n + gamma dt
+    (v'_(n+1) - v'_n)``, from ``first_rates``."""
+    _, alpha_f, gamma = coefficients(rho)
     n = net.n_states
     stages = ys[:-1] + alpha_f * (ys[1:] - ys[:-1])
     t_af = (jnp.arange(ys.shape[0] - 1) + alpha_f) * dt
     g = jax.vmap(net.outputs)(t_af, stages[:, :n], stages[:, n:])
     if not g:  # no internal variables (vessels and junctions alone)
-        return {}
+        return {}, {}
 
-    def carry(v, g_af):
-        v = jax.tree.map(lambda a, b: a + (b - a) / alpha_f, v, g_af)
-        return v, v
+    def carry(state, g_af):
+        v, vdot = state
+        new = v + (g_af - v) / alpha_f
+        new_rate = vdot + (new - v - dt * vdot) / (gamma * dt)
+        return (new, new_rate), (new, new_rate)
 
-    first = {k: first[k] for k in g}
-    _, rest = jax.lax.scan(carry, first, g)
-    return {k: jnp.concatenate([first[k][None], rest[k]]) for k in g}
+    out = {}, {}
+    for k in g:
+        _, (values, rates) = jax.lax.scan(carry, (first[k], first_rates[k]), g[k])
+        out[0][k] = jnp.concatenate([first[k][None], values])
+        out[1][k] = jnp.concatenate([first_rates[k][None], rates])
+    return out
 
 
 STEADY_MARCH = (31, 10)
@@ -153,7 +163,7 @@ on the steady equations, from the initial values as given."""
 
 
 def marches(net) -> bool:
-    """Whether the steady start-up of ``net`` is marched here as svZeroDSolver marches it: a
+    """Whether the steady start-up of ``net`` must be marched as svZeroDSolver marches it: a
     network with a block whose equations keep time in the start-up (a chamber's activation,
     :attr:`~cardiosoft.network.blocks.Block.keeps_time`), which has no steady state to solve
     for."""
@@ -162,8 +172,8 @@ def marches(net) -> bool:
 
 def steady_march(net, y0, rho: float):
     """svZeroDSolver's steady start-up of ``net`` from ``y0`` (:data:`STEADY_MARCH`; ``rho``:
-    the model's ``rho_infty``): ``y`` at every step, the last ``y'``, and whether every
-    step's Newton converged."""
+    the model's ``rho_infty``): ``y`` and ``y'`` at every step, and whether every step's
+    Newton converged."""
     steps, parts = STEADY_MARCH
     return _steps(net, y0, jnp.zeros_like(y0), net.period / parts, steps, rho, True)
 
@@ -179,20 +189,27 @@ def given_start(model: Model) -> jnp.ndarray:
 
 
 def _start(model: Model):
-    """svZeroDSolver's first ``(y, y')``, its internal variables there, and whether its steady
-    start-up converged (None without one): the initial values as given with ``y' = 0``; the
-    steady start-up marched (:func:`marches`); or the steady state solved for, ``y' = 0``."""
+    """svZeroDSolver's first ``y`` and ``y'``, its internal variables and their rates there,
+    and how the steady start-up went (None without one; else whether it converged and whether
+    it was marched). From the initial values as given with zero rates; with ``steady_initial``,
+    svZeroDSolver's march (:func:`steady_march`) wherever every block's start-up is reproduced
+    (:attr:`~cardiosoft.network.blocks.Block.marchable`) or must be (:func:`marches`), else the
+    steady state solved for, with zero rates (a coronary, the combined heart)."""
     net, sim = model.network, model.simulation
     y0 = given_start(model)
     given = {k: jnp.asarray(model.initial[k], y0.dtype) for k in _output_names(net)}
+    still = {k: jnp.zeros_like(v) for k, v in given.items()}
     if not sim.steady_initial:
-        return y0, jnp.zeros_like(y0), given, None
-    if marches(net):
-        ys, ydot, ok = steady_march(net, y0, sim.rho_infty)
-        internal = _internal(net, ys, given, net.period / STEADY_MARCH[1], sim.rho_infty)
-        return ys[-1], ydot, {k: v[-1] for k, v in internal.items()}, bool(ok)
+        return y0, jnp.zeros_like(y0), given, still, None
+    if marches(net) or all(b.marchable for b in net.blocks):
+        ys, ydots, ok = steady_march(net, y0, sim.rho_infty)
+        dt = net.period / STEADY_MARCH[1]
+        internal, rates = _internal(net, ys, given, still, dt, sim.rho_infty)
+        last = {k: v[-1] for k, v in internal.items()}
+        return ys[-1], ydots[-1], last, {k: v[-1] for k, v in rates.items()}, (bool(ok), True)
     x0, z0, ok = net.steady_solution(model.initial_states())
-    return jnp.concatenate([x0, z0]), jnp.zeros_like(y0), net.outputs(0.0, x0, z0), bool(ok)
+    y = jnp.concatenate([x0, z0])
+    return y, jnp.zeros_like(y), net.outputs(0.0, x0, z0), still, (bool(ok), False)
 
 
 def step_as_svzerod(model: Model) -> Traces:
@@ -218,23 +235,34 @@ def step_as_svzerod(model: Model) -> Traces:
             "unknowns; the network steps that pressure itself, a nonlinear function of them, "
             "so the digits would differ by the scheme's error"
         )
-    if sim.caps or sim.derivative:
-        option = "use_cycle_to_cycle_error" if sim.caps else "output_derivative"
-        raise UnsupportedModel(f"--as-svzerod: simulation option {option!r} is not supported")
-    y0, ydot0, first, steady_start = _start(model)
+    if sim.caps:
+        raise UnsupportedModel(
+            "--as-svzerod: simulation option 'use_cycle_to_cycle_error' is not supported"
+        )
+    y0, ydot0, first, first_rates, start = _start(model)
+    if sim.derivative and start is not None and not start[1]:
+        raise UnsupportedModel(
+            "--as-svzerod: simulation option 'output_derivative' with the steady start-up of a "
+            "coronary or the combined heart, which is solved for here, not marched: the rates "
+            "it starts from would not be svZeroDSolver's"
+        )
     n_steps = sim.steps_per_cycle * sim.cycles
     dt = net.period / sim.steps_per_cycle
-    ys, _, converged = _steps(net, y0, ydot0, dt, n_steps, sim.rho_infty)
+    ys, ydots, converged = _steps(net, y0, ydot0, dt, n_steps, sim.rho_infty)
     n = net.n_states
-    internal = _internal(net, ys, first, dt, sim.rho_infty)
+    internal, rates = _internal(net, ys, first, first_rates, dt, sim.rho_infty)
     t_all = dt * np.arange(n_steps + 1)
     keep = slice(None) if sim.output_all_cycles else slice(-sim.points_per_cycle, None)
-    ts, ys = t_all[keep], ys[keep]
-    values = node_columns(net, ys[:, n:])
+    ts = t_all[keep]
+    values = node_columns(net, ys[keep, n:])
     values.update({k: v[keep] for k, v in internal.items()})
+    if sim.derivative:  # svZeroDSolver's ydot of every variable, its scheme's
+        values.update({f"ydot:{k}": v for k, v in node_columns(net, ydots[keep, n:]).items()})
+        values.update({f"ydot:{k}": v[keep] for k, v in rates.items()})
     values = {k: np.asarray(v) for k, v in values.items()}
     time = ts if sim.output_all_cycles else ts - ts[0]
     return Traces(
-        np.asarray(time), values, bool(converged), steady_start, n_steps, False,
+        np.asarray(time), values, bool(converged), None if start is None else start[0],
+        n_steps, False,
         mean_only=sim.mean_only,
     )  # fmt: skip

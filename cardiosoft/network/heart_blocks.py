@@ -93,6 +93,7 @@ class ClosedLoopHeart(Block):
     p: dict
     period: float = eqx.field(static=True)
     kind = "ClosedLoopHeartAndPulmonary"
+    marchable = False
     n_states = len(_STATES) + 1
 
     def state_kinds(self):

@@ -159,6 +159,14 @@ class Network(eqx.Module):
         parts = [b.rates(t, xb, P, Q, steady) for b, xb, P, Q in self._each(x, z)]
         return jnp.concatenate(parts) if parts else jnp.zeros((0,))
 
+    def mass_flux(self, t, x, z, steady: bool = False):
+        """Every block's :meth:`~cardiosoft.network.blocks.Block.mass_flux`, stacked like
+        ``x``."""
+        parts = [b.mass_flux(t, xb, P, Q, steady) for b, xb, P, Q in self._each(x, z)]
+        if not parts:
+            return jnp.zeros((0,)), jnp.zeros((0,))
+        return tuple(jnp.concatenate(column) for column in zip(*parts, strict=True))
+
     def _algebraic(self, t, x, z, steady):
         """The equations that fix ``z``: the residuals, where the reduction has turned the
         combinations of them that hold no node unknown into their time derivatives."""

@@ -15,7 +15,8 @@ The reader follows svZeroDSolver's own definitions (``src/solve/SimulationParame
   backward-Euler-like march leave of the slowest transient, which the beats that follow damp).
   A model with a chamber has no steady state (its activation keeps time in the start-up): its
   start-up is marched as svZeroDSolver marches it (:func:`~cardiosoft.network.gen_alpha.
-  steady_march`), refused beside blocks whose capacitors the start-up switches off.
+  steady_march`), refused beside a coronary or the combined heart, whose start-up equations are
+  not reproduced step for step.
 
 A block type, a simulation option or a parameter this reader does not support is refused in one
 line (:class:`UnsupportedModel`) that names it. Keys that start with ``_`` are comments.
@@ -416,23 +417,18 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
     return dataclasses.replace(model, network=network)
 
 
-SWITCHED_IN_STEADY = ("RCR", "ClosedLoopRCR", *CORONARIES)
-"""Blocks whose capacitors svZeroDSolver's steady start-up switches off (``Model::to_steady``,
-and the coronaries' steady equations); the network solves their steady state instead."""
-
-
 def _check_march(blocks, simulation: Simulation) -> None:
     """A steady start-up that must be marched (a chamber's activation keeps time in it,
-    :func:`cardiosoft.network.gen_alpha.marches`) is marched on the blocks' own equations:
-    refused with a block whose start-up equations switch its capacitors off."""
+    :func:`cardiosoft.network.gen_alpha.marches`) is refused beside a block whose start-up is
+    not reproduced step for step (:attr:`~cardiosoft.network.blocks.Block.marchable`)."""
     timed = [b for b in blocks if b.keeps_time]
-    switched = [b for b in blocks if b.kind in SWITCHED_IN_STEADY]
-    if simulation.steady_initial and timed and switched:
+    other = [b for b in blocks if not b.marchable]
+    if simulation.steady_initial and timed and other:
         raise UnsupportedModel(
-            f"{timed[0].kind} {timed[0].name} with steady_initial and the {switched[0].kind} "
-            f"{switched[0].name}: svZeroDSolver marches the start-up through the chamber's "
-            f"activation with the {switched[0].kind}'s capacitors switched off, which the "
-            "network does not reproduce; set steady_initial to false"
+            f"{timed[0].kind} {timed[0].name} with steady_initial and the {other[0].kind} "
+            f"{other[0].name}: svZeroDSolver marches the start-up through the chamber's "
+            f"activation, and the {other[0].kind}'s start-up equations are not reproduced step "
+            "for step; set steady_initial to false"
         )
 
 
