@@ -78,7 +78,7 @@ class Block(eqx.Module):
     keeps_time = False
     """Whether its equations keep time in svZeroDSolver's steady start-up (a chamber's
     activation): a network with one has no steady state, and its start-up is marched
-    (:func:`cardiosoft.network.gen_alpha.steady_march`)."""
+    (:func:`cardiosoft.network.scheme.steady_march`)."""
     marchable = True
     """Whether svZeroDSolver's steady start-up of it is reproduced step for step
     (:meth:`mass_flux`); not the coronaries' and the combined heart's, whose ``steady``

@@ -188,7 +188,7 @@ def simulate(
     def each_stored(jitted, *axes):  # likewise, one network's program from a command's store
         return functools.partial(stored_call, jitted) if variants is None else each(jitted, *axes)
 
-    from cardiosoft.network.gen_alpha import given_start, marches, steady_march
+    from cardiosoft.network.scheme import given_start, marches, steady_march
 
     x0 = model.initial_states()
     steady_start = None

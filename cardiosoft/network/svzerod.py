@@ -419,7 +419,7 @@ def read(source, name: str | None = None, pump: PumpPlacement | None = None) -> 
 
 def _check_march(blocks, simulation: Simulation) -> None:
     """A steady start-up that must be marched (a chamber's activation keeps time in it,
-    :func:`cardiosoft.network.gen_alpha.marches`) is refused beside a block whose start-up is
+    :func:`cardiosoft.network.scheme.marches`) is refused beside a block whose start-up is
     not reproduced step for step (:attr:`~cardiosoft.network.blocks.Block.marchable`)."""
     timed = [b for b in blocks if b.keeps_time]
     other = [b for b in blocks if not b.marchable]
