@@ -32,8 +32,11 @@ chambers (:class:`~cardiosoft.network.loop_blocks.LawChamber`), the vessels (svZ
 ``BloodVesselCRL``: the capacitor at the inlet, then R and L) and the valves
 (:class:`~cardiosoft.network.loop_blocks.LawValve`), joined at twelve nodes. The nodes are solved
 in the order :func:`~cardiosoft.network.ordering.order_nodes` finds once for this wiring
-(:func:`loop_order`): each is one division, so a beat costs what the written-out field's does;
-its program is larger, and compiles slower (``benchmarks/engines.py``).
+(:func:`loop_order`): each is one division, so a beat costs what the written-out field's does
+(``benchmarks/engines.py``). It is the default (:data:`DEFAULT_ENGINE`): the closed loops run on
+the engine that runs svZeroDSolver's models, which svZeroDSolver itself checks
+(``tests/test_network.py``); ``engine="direct"`` keeps the equations written out, the second
+implementation the network is tested against (``tests/test_network_loop.py``).
 """
 
 from __future__ import annotations
@@ -62,6 +65,7 @@ _E = mmHg / ml  # 1 mmHg/ml in Pa/m^3
 
 __all__ = [
     "CHAMBERS",
+    "DEFAULT_ENGINE",
     "ENGINES",
     "VALVES",
     "VESSELS",
@@ -73,6 +77,11 @@ __all__ = [
 
 ENGINES = ("direct", "network")
 """How :class:`ClosedLoop` evaluates its equations (:attr:`ClosedLoop.engine`)."""
+DEFAULT_ENGINE = "network"
+"""The engine a closed loop runs on unless told otherwise. Measured against the written-out
+field (2026-12-07, 2 cores, ``benchmarks/README.md``): a compiled shooting call of ``tah`` the
+same (0.18-0.23 against 0.20-0.26 s), a traced first run of a design question 3-5 % longer,
+the order found once a machine (:func:`loop_order`)."""
 
 CHAMBERS = ("la", "lv", "ra", "rv")
 """Left atrium, left ventricle, right atrium, right ventricle."""
@@ -123,11 +132,10 @@ class ClosedLoop(eqx.Module):
     aortic: ArctanValve | Valve
     tricuspid: ArctanValve | Valve
     pulmonary: ArctanValve | Valve
-    engine: str = eqx.field(static=True, default="direct")
-    """``"direct"``: the equations above written out; ``"network"``: the same equations as a
-    :class:`~cardiosoft.network.network.Network` of blocks (module docstring). The two agree to
-    round-off (``tests/test_network_loop.py``); the network compiles slower (measured in
-    ``benchmarks/engines.py``), so it is not the default yet."""
+    engine: str = eqx.field(static=True, default=DEFAULT_ENGINE)
+    """``"network"`` (the default): the equations as a
+    :class:`~cardiosoft.network.network.Network` of blocks (module docstring); ``"direct"``: the
+    equations above written out. The two agree to round-off (``tests/test_network_loop.py``)."""
 
     def __check_init__(self):
         if self.engine not in ENGINES:
@@ -269,12 +277,14 @@ def loop_order() -> tuple:
     chamber law gives the pressure of its two nodes, every valve law the flow through it), so
     it is found once, on a stand-in loop (elastance chambers and arctan valves at
     physiological values), and serves every closed loop: pumps and the smooth valve law have
-    the same equations' structure (``tests/test_network_loop.py`` checks ``tah``'s)."""
-    from cardiosoft.network.ordering import order_nodes
+    the same equations' structure (``tests/test_network_loop.py`` checks ``tah``'s). A
+    command keeps it in its store (:func:`~cardiosoft.network.ordering.stored_order`): finding
+    it takes 1-2 s, once a machine."""
+    from cardiosoft.network.ordering import stored_order
 
     with jax.ensure_compile_time_eval():  # first asked for while a solve is being traced
         x0 = np.asarray([100.0 * ml] * 4 + [20.0 * mmHg, 0.0] * 4)  # the stand-in's start
-        return order_nodes(_stand_in().network(), x0)
+        return stored_order(_stand_in().network(), x0)
 
 
 def _stand_in() -> ClosedLoop:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cardiosoft.network.closed_loop import DEFAULT_ENGINE
 from cardiosoft.network.loop_batch import loop_config as preset
 from cardiosoft.network.loop_batch import solve_loop
 from cardiosoft.network.loop_records import (
@@ -104,7 +105,7 @@ def solve_beats(
     pump=None,
     config=None,
     scene_draws=None,
-    engine="direct",
+    engine=DEFAULT_ENGINE,
 ):
     """:func:`cardiosoft.batch.solve_beats` of a closed loop:
     :func:`~cardiosoft.network.loop_batch.solve_loop`, ``omega`` and ``shortening`` setting

@@ -39,7 +39,7 @@ from cardiosoft.beat_solution import (
 )
 from cardiosoft.ensemble import ensemble_size, flat_batch, unflatten
 from cardiosoft.metrics import trapezoid
-from cardiosoft.network.closed_loop import CHAMBERS, VESSELS, ClosedLoop
+from cardiosoft.network.closed_loop import CHAMBERS, DEFAULT_ENGINE, VESSELS, ClosedLoop
 from cardiosoft.network.loop_scene import LoopScene, loop_circuit, loop_numbers, number_key
 from cardiosoft.periodic import BeatProblem, periodic_beats_batch
 from cardiosoft.program_store import stored_call
@@ -286,7 +286,7 @@ def solve_loop(
     config: SolverConfig | None = None,
     guess_beats: int = GUESS_BEATS,
     max_newton: int = 8,
-    engine: str = "direct",
+    engine: str = DEFAULT_ENGINE,
 ) -> BeatSolution:
     """Simulate a batch of members of a closed-loop scene to their periodic steady state.
 
@@ -319,7 +319,7 @@ def solve_loop(
       (a 1e7 ratio of closed to open resistance) make the one-beat map nearly kinked: near the
       design box's corners Newton converges linearly, in 6-16 iterations on ``tah`` (Omega 6,
       C 0.65 on the left).
-    - ``engine``: ``"direct"`` or ``"network"``
+    - ``engine``: ``"network"`` (default) or ``"direct"``
       (:attr:`~cardiosoft.network.closed_loop.ClosedLoop.engine`).
 
     **Returns:** a :class:`~cardiosoft.batch.BeatSolution` whose ``metrics`` are

@@ -27,7 +27,7 @@ from typing import ClassVar
 
 from cardiosoft._scene_file import _Number, _Reader
 from cardiosoft.actuation import BPM_RANGE, SHAPES, CablePull
-from cardiosoft.network.closed_loop import CHAMBERS, VALVES, VESSELS, ClosedLoop
+from cardiosoft.network.closed_loop import CHAMBERS, DEFAULT_ENGINE, VALVES, VESSELS, ClosedLoop
 from cardiosoft.network.loop_components import Activation, ElastanceChamber, PumpChamber, Vessel
 from cardiosoft.pump import DEFAULT_ARTIFACT, Domain, PumpSurrogate
 from cardiosoft.solve import ACCURACY_PRESETS as ACCURACY
@@ -168,7 +168,7 @@ def loop_numbers(scene: LoopScene) -> dict[str, float]:
 
 
 def loop_circuit(
-    scene: LoopScene, pump: PumpSurrogate | None = None, engine: str = "direct"
+    scene: LoopScene, pump: PumpSurrogate | None = None, engine: str = DEFAULT_ENGINE
 ) -> ClosedLoop:
     """The :class:`~cardiosoft.network.closed_loop.ClosedLoop` of ``scene`` (numbers may be traced).
 
