@@ -80,8 +80,9 @@ ENGINES = ("direct", "network")
 DEFAULT_ENGINE = "network"
 """The engine a closed loop runs on unless told otherwise. Measured against the written-out
 field (2026-12-07, 2 cores, ``benchmarks/README.md``): a compiled shooting call of ``tah`` the
-same (0.18-0.23 against 0.20-0.26 s), a traced first run of a design question 3-5 % longer,
-the order found once a machine (:func:`loop_order`)."""
+same (0.18-0.23 against 0.20-0.26 s), a design question's first run 3-10 % longer (soft-lv
+traced, tah compiled from the shipped programs), the order found once a machine
+(:func:`loop_order`)."""
 
 CHAMBERS = ("la", "lv", "ra", "rv")
 """Left atrium, left ventricle, right atrium, right ventricle."""

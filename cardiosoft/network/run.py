@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cardiosoft.network.scheme import given_start, marches, steady_march
 from cardiosoft.network.svzerod import Model
 from cardiosoft.periodic import periodic_beats
 from cardiosoft.program_store import stored_call
@@ -187,8 +188,6 @@ def simulate(
 
     def each_stored(jitted, *axes):  # likewise, one network's program from a command's store
         return functools.partial(stored_call, jitted) if variants is None else each(jitted, *axes)
-
-    from cardiosoft.network.scheme import given_start, marches, steady_march
 
     x0 = model.initial_states()
     steady_start = None

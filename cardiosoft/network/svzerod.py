@@ -14,7 +14,7 @@ The reader follows svZeroDSolver's own definitions (``src/solve/SimulationParame
   a tenth of a period; this reader solves for it (the two differ by what 3.1 periods of a
   backward-Euler-like march leave of the slowest transient, which the beats that follow damp).
   A model with a chamber has no steady state (its activation keeps time in the start-up): its
-  start-up is marched as svZeroDSolver marches it (:func:`~cardiosoft.network.gen_alpha.
+  start-up is marched as svZeroDSolver marches it (:func:`~cardiosoft.network.scheme.
   steady_march`), refused beside a coronary or the combined heart, whose start-up equations are
   not reproduced step for step.
 
