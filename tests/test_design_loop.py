@@ -150,16 +150,3 @@ def test_total_artificial_heart_question_says_what_it_cannot_reach():
     for t in (co, lap, rap):
         assert t.seen[0] - 1e-9 <= t.value <= t.seen[1] + 1e-9
     assert np.isfinite([t.value for t in r.targets]).all()
-
-
-@pytest.mark.slow
-def test_an_unreachable_question_stops_where_the_cost_stops_falling():
-    """Where the targets cannot all be met the least squares move along a flat valley: they
-    stop once a step lowers the cost by under FTOL of it, not at a count set by the path.
-    Measured: questions 0.1 mmHg of LAP apart took 42 designs each (at ftol 1e-3, 57 and 72)."""
-    runs = [optimise_loop("tah", target_co=5.0, lap=lap, rap=5.0) for lap in (7.9, 8.1)]
-    # within one call (5 designs: 4 free variables and the point): round-off may move a step
-    assert abs(runs[0].evaluations - runs[1].evaluations) <= 5
-    # and the answers lie within one unit of residual of each other (0.1 l/min, 1 mmHg)
-    for a, b in zip(runs[0].targets, runs[1].targets, strict=True):
-        assert abs(a.value - b.value) < a.weight
