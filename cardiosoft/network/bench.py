@@ -213,9 +213,10 @@ def bench_order(has_preload: bool, has_flow: bool) -> tuple:
     once per structure, on a stand-in (a linear chamber; the bench's column with its inertia,
     or a three-element Windkessel, its line a resistance; an atrial source of 10 mmHg), and
     serves every circuit of that structure (``tests/test_network_bench.py`` checks it against
-    the dense Newton)."""
+    the dense Newton). A command keeps it in its store
+    (:func:`~cardiosoft.network.ordering.stored_order`), as the closed loop's."""
     from cardiosoft.circulation import AtrialSource
-    from cardiosoft.network.ordering import order_nodes
+    from cardiosoft.network.ordering import stored_order
 
     with jax.ensure_compile_time_eval():  # first asked for while a solve is being traced
         afterload = WaterColumn(0.02, 60.0 * mmHg) if has_flow else Windkessel3.systemic()
@@ -227,7 +228,7 @@ def bench_order(has_preload: bool, has_flow: bool) -> tuple:
         net = _network(shell, keys, pre_keys, has_flow)
         y_a = [1.0 * ml] * len(keys)
         x0 = np.asarray([60.0 * ml, *y_a, *[0.0] * has_flow, *[1.0 * ml] * len(pre_keys)])
-        return order_nodes(net, x0)
+        return stored_order(net, x0)
 
 
 class BenchNetwork(eqx.Module):
