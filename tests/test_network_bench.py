@@ -120,6 +120,31 @@ def test_the_bench_network_has_the_circuits_field_and_signals(name):
         assert _largest_gap(s, r) <= ROUND_OFF
 
 
+def test_the_network_field_evaluates_the_chamber_law_as_the_direct_field_does(monkeypatch):
+    """The pump block's residual (the cavity's pressure) and its rates (the dashpot's
+    relaxation) both need the chamber law at the shell's pull: the network's field evaluates
+    it as often as the written-out field does (the slack cables' tension asks for it more than
+    once; the network evaluating it for both made 8 calls against 5, and the bench's field 995
+    jaxpr equations against the written-out 591)."""
+    scene = VARIANTS["lv-systemic, every shell effect"]
+    pump = load(scene.pump)
+    calls = []
+    chamber = type(pump).chamber
+
+    def counted(self, *args, **kwargs):
+        calls.append(1)
+        return chamber(self, *args, **kwargs)
+
+    monkeypatch.setattr(type(pump), "chamber", counted)
+    counts = {}
+    for engine in ("direct", "network"):
+        circuit = scene_circuit(scene, pump, 60.0 * mmHg, engine=engine)
+        calls.clear()
+        jax.make_jaxpr(circuit)(0.3, circuit.init())
+        counts[engine] = len(calls)
+    assert counts["network"] == counts["direct"]
+
+
 def test_the_bench_nodes_are_solved_as_the_dense_newton_solves_them():
     """The order found on the stand-in (:func:`~cardiosoft.network.bench.bench_order`) gives
     the nodes the one dense Newton on all the equations gives, on the circuit with a preload

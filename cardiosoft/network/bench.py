@@ -73,18 +73,25 @@ class ShellPump(Block):
             y["relaxation"] = x[1]
         return y
 
-    def residuals(self, t, x, P, Q, steady=False):
-        pressure = self.shell.pump_pressure(t, self._state(x))["pump_pressure"]
+    def shared_terms(self, t, x) -> dict:
+        """The pump's side (:meth:`~cardiosoft.circuit.PumpCircuit.pump_pressure`): the
+        cavity's pressure for the residuals, the chamber law for the dashpot's rate."""
+        return self.shell.pump_pressure(t, self._state(x))
+
+    def residuals(self, t, x, P, Q, steady=False, shared=None):
+        pressure = (self.shared_terms(t, x) if shared is None else shared)["pump_pressure"]
         if len(self.ports) == 1:
             return jnp.stack([P[0] - pressure])
         return jnp.stack([P[0] - pressure, P[1] - P[0]])
 
-    def rates(self, t, x, P, Q, steady=False):
+    def rates(self, t, x, P, Q, steady=False, shared=None):
         inflow = Q[0] if len(self.ports) == 2 else 0.0
         rates = [inflow - Q[len(self.ports) - 1]]
         if self.shell.viscoelasticity is not None:
-            # the dashpot needs the chamber law alone, not the cavity's pressure again
-            rates.append(self.shell.relaxation_rate(t, self._state(x)))
+            if shared is None:  # the chamber law alone, not the cavity's pressure again
+                rates.append(self.shell.relaxation_rate(t, self._state(x)))
+            else:
+                rates.append(self.shell.viscoelasticity.rate(shared["chamber"], x[0], x[1]))
         return jnp.stack(rates)
 
 

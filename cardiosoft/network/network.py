@@ -71,6 +71,12 @@ class _Scalars(tuple):
         return self[0].dtype if len(self) else jnp.result_type(float)
 
 
+def _given(shared, i) -> dict:
+    """The keyword that passes block ``i`` its shared terms (:meth:`Network._shared`), where it
+    has them."""
+    return {} if shared is None or shared[i] is None else {"shared": shared[i]}
+
+
 def _newton(g, w, steps, groups):
     """``steps`` Newton steps on ``g(w) = 0`` from ``w``; returns ``w`` and the size of one more
     step: as it is when ``groups`` is None, else its largest part relative to the largest
@@ -154,10 +160,19 @@ class Network(eqx.Module):
             [b.residuals(t, xb, P, Q, steady) for b, xb, P, Q in self._each(x, z)]
         )
 
-    def rates(self, t, x, z, steady: bool = False):
-        """Every block's state derivatives, stacked like ``x``."""
-        parts = [b.rates(t, xb, P, Q, steady) for b, xb, P, Q in self._each(x, z)]
+    def rates(self, t, x, z, steady: bool = False, shared=None):
+        """Every block's state derivatives, stacked like ``x``; ``shared``: :meth:`_shared`'s."""
+        parts = [
+            b.rates(t, xb, P, Q, steady, **_given(shared, i))
+            for i, (b, xb, P, Q) in enumerate(self._each(x, z))
+        ]
         return jnp.concatenate(parts) if parts else jnp.zeros((0,))
+
+    def _shared(self, t, x) -> list:
+        """Each block's :meth:`~cardiosoft.network.blocks.Block.shared_terms` at ``(t, x)``,
+        for one evaluation's residuals and rates."""
+        pairs = zip(self.blocks, self._offsets(), strict=True)
+        return [b.shared_terms(t, x[k : k + b.n_states]) for b, k in pairs]
 
     def mass_flux(self, t, x, z, steady: bool = False):
         """Every block's :meth:`~cardiosoft.network.blocks.Block.mass_flux`, stacked like
@@ -194,7 +209,7 @@ class Network(eqx.Module):
     def _stacked(z: list, dtype):
         return jnp.stack([jnp.asarray(v, dtype) for v in z])
 
-    def _ordered(self, t, x) -> list:
+    def _ordered(self, t, x, shared=None) -> list:
         """The nodes' unknowns solved stage by stage in :attr:`order`
         (:mod:`~cardiosoft.network.ordering`), as a list of scalars (an unsolved one a literal
         zero, so that a block reads its ports without gathers): aliases copied, then a Newton
@@ -217,7 +232,7 @@ class Network(eqx.Module):
                 out = []
                 for i, rows in stage.owners:
                     b, xb, P, Q = self._block(i, offsets[i], x, z)
-                    r = b.residuals(t, xb, P, Q)
+                    r = b.residuals(t, xb, P, Q, **_given(shared, i))
                     out += [r[j] for j in rows]
                 return tuple(out)
 
@@ -284,7 +299,8 @@ class Network(eqx.Module):
         """``dx/dt`` at ``(t, x)``; ``steady`` uses the steady start-up's equations."""
         if self.order is not None and not steady:
             scalars = list(x)
-            return self.rates(t, scalars, self._ordered(t, scalars))
+            shared = self._shared(t, scalars)
+            return self.rates(t, scalars, self._ordered(t, scalars, shared), shared=shared)
         return self.rates(t, x, self.node_values(t, x, steady), steady)
 
     def outputs(self, t, x, z) -> dict:
