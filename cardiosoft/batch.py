@@ -97,7 +97,7 @@ from cardiosoft.circuit import (
 )
 from cardiosoft.ensemble import ensemble_axes, flat_batch, unflatten
 from cardiosoft.metrics import beat_metrics, trapezoid
-from cardiosoft.network.bench import ENGINES, BenchNetwork
+from cardiosoft.network.bench import DEFAULT_ENGINE, ENGINES, BenchNetwork
 from cardiosoft.periodic import BeatProblem, periodic_beats_batch
 from cardiosoft.program_store import stored_call
 from cardiosoft.pump import PumpSurrogate, load
@@ -166,16 +166,17 @@ def scene_circuit(
     afterload=None,
     *,
     energy: bool = False,
-    engine: str = "direct",
+    engine: str = DEFAULT_ENGINE,
 ) -> PumpCircuit | BenchNetwork:
     """The :class:`PumpCircuit` of one member of ``scene``, with only the scene's effects.
 
     ``afterload`` is the column head (Pa) of a water-column scene (default: its first) and is
     ignored by a Windkessel scene. ``energy``: keep the energy account
-    (:meth:`PumpCircuit.power`). ``engine``: ``"direct"``, the circuit's equations written
-    out; ``"network"``, the same equations as a network of blocks
-    (:class:`~cardiosoft.network.bench.BenchNetwork`). Numbers may be traced (this runs inside
-    the batch solve).
+    (:meth:`PumpCircuit.power`). ``engine``: ``"network"`` (the default,
+    :data:`~cardiosoft.network.closed_loop.DEFAULT_ENGINE`), the equations as a network of
+    blocks (:class:`~cardiosoft.network.bench.BenchNetwork`); ``"direct"``, the circuit's
+    equations written out, the second implementation it is tested against. Numbers may be
+    traced (this runs inside the batch solve).
     """
     if engine not in ENGINES:
         raise ValueError(f"engine = {engine!r} is not one of {', '.join(ENGINES)}")
@@ -374,7 +375,7 @@ def solve_beats(
     pump: PumpSurrogate | None = None,
     config: SolverConfig | None = None,
     scene_draws: dict | None = None,
-    engine: str = "direct",
+    engine: str = DEFAULT_ENGINE,
 ) -> BeatSolution:
     """Simulate a batch of members of ``scene`` to their periodic steady state (module docstring).
 
@@ -405,8 +406,9 @@ def solve_beats(
     - ``scene_draws``: scene numbers that differ between the ensemble's draws, ``{field: (S,)
       array}`` (SI; fields of :data:`SCENE_NUMBERS` that are not members), e.g. the bench's
       calibrated tube per draw; with a single pump, an ensemble of the scene's numbers alone.
-    - ``engine``: ``"direct"`` (default) or ``"network"``, the scene as a network of blocks
-      (:func:`scene_circuit`); the two agree to the solver's tolerance.
+    - ``engine``: ``"network"`` (default), the scene as a network of blocks, or ``"direct"``,
+      its equations written out (:func:`scene_circuit`); the two agree to the solver's
+      tolerance.
 
     **Returns:** a :class:`BeatSolution`. Nothing is raised for a member that fails or is not
     steady: see ``succeeded``, ``steady`` and ``message(i)``. Bad input raises ``ValueError``.
@@ -463,7 +465,7 @@ def solve_orbit(
     energy: bool = False,
     pump: PumpSurrogate | None = None,
     config: SolverConfig | None = None,
-    engine: str = "direct",
+    engine: str = DEFAULT_ENGINE,
 ) -> BeatSolution:
     """One beat of each member from ``start``, a point of its periodic orbit, differentiated as
     the orbit.

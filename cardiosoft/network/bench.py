@@ -34,13 +34,16 @@ import numpy as np
 from cardiosoft.circuit import PumpCircuit, line_acceleration, line_outflow
 from cardiosoft.circulation import AbstractAfterload, AbstractPreload, WaterColumn, Windkessel3
 from cardiosoft.network.blocks import Block
-from cardiosoft.network.closed_loop import ENGINES
+from cardiosoft.network.closed_loop import DEFAULT_ENGINE, ENGINES
 from cardiosoft.network.loop_blocks import LawValve
 from cardiosoft.network.network import Network
 from cardiosoft.units import ml, mmHg, mmHg_s_per_ml
 from cardiosoft.valves import Valve
 
-__all__ = ["ENGINES", "AfterloadLine", "BenchNetwork", "PreloadSource", "ShellPump", "bench_order"]
+__all__ = [
+    "DEFAULT_ENGINE", "ENGINES", "AfterloadLine", "BenchNetwork", "PreloadSource", "ShellPump",
+    "bench_order",
+]  # fmt: skip
 
 
 def _state_kind(key: str) -> str:

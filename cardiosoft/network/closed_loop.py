@@ -78,11 +78,14 @@ __all__ = [
 ENGINES = ("direct", "network")
 """How :class:`ClosedLoop` evaluates its equations (:attr:`ClosedLoop.engine`)."""
 DEFAULT_ENGINE = "network"
-"""The engine a closed loop runs on unless told otherwise. Measured against the written-out
-field (2026-12-07, 2 cores, ``benchmarks/README.md``): a compiled shooting call of ``tah`` the
-same (0.18-0.23 against 0.20-0.26 s), a design question's first run 3-10 % longer (soft-lv
-traced, tah compiled from the shipped programs), the order found once a machine
-(:func:`loop_order`)."""
+"""The engine every scene runs on unless told otherwise: the closed loops
+(:class:`ClosedLoop`) and the open ones (:func:`cardiosoft.batch.scene_circuit`). Measured
+against the written-out fields (2026-12-07, 2 cores, ``benchmarks/README.md``): a compiled
+shooting call of ``tah`` the same (0.18-0.23 against 0.20-0.26 s), a design question's first
+run 3-10 % longer (soft-lv traced, tah compiled from the shipped programs); the main job with
+its shipped programs the same within the machine's noise (cold 4.0-4.7 against 4.4-4.9 s,
+warm 1.5-1.7 against 1.6-1.7 s), traced 0.3-0.6 s longer; each order found once a machine
+(:func:`loop_order`, :func:`cardiosoft.network.bench.bench_order`)."""
 
 CHAMBERS = ("la", "lv", "ra", "rv")
 """Left atrium, left ventricle, right atrium, right ventricle."""
