@@ -362,12 +362,6 @@ class PumpCircuit(eqx.Module):
         pulls = self._shell_pull(t, y)
         return pulls, self.pump.chamber(pulls.get("shell_pull", pulls["pull"]), self.omega)
 
-    def relaxation_rate(self, t, y) -> jax.Array:
-        """ds_v/dt (m^3/s) of the shell's dashpot at time t (with its viscoelasticity): the
-        chamber law at the shell's pull, without the cavity's pressure."""
-        chamber = self._chamber(t, y)[1]
-        return self.viscoelasticity.rate(chamber, y["volume"], y["relaxation"])
-
     def pump_pressure(self, t, y) -> dict:
         """The pump's side at time t (SI): the disk's pull (and, with slack cables, the shell's
         own and the tension), the chamber law at the shell's pull (``chamber``) and the

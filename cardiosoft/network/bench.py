@@ -58,7 +58,8 @@ class ShellPump(Block):
     volume s_v (m^3). ``dV/dt = Q_in - Q_out``; ``ds_v/dt`` as
     :meth:`~cardiosoft.circuit.ShellViscoelasticity.rate`. The pressure law is
     ``shell.pump_pressure`` (:meth:`~cardiosoft.circuit.PumpCircuit.pump_pressure`, which
-    reads the pump's side of the circuit only), the dashpot's ``shell.relaxation_rate``."""
+    reads the pump's side of the circuit only), whose chamber law the dashpot's rate reads
+    too (:meth:`shared_terms`)."""
 
     shell: PumpCircuit
     kind = "SoftPump"
@@ -91,10 +92,8 @@ class ShellPump(Block):
         inflow = Q[0] if len(self.ports) == 2 else 0.0
         rates = [inflow - Q[len(self.ports) - 1]]
         if self.shell.viscoelasticity is not None:
-            if shared is None:  # the chamber law alone, not the cavity's pressure again
-                rates.append(self.shell.relaxation_rate(t, self._state(x)))
-            else:
-                rates.append(self.shell.viscoelasticity.rate(shared["chamber"], x[0], x[1]))
+            chamber = (self.shared_terms(t, x) if shared is None else shared)["chamber"]
+            rates.append(self.shell.viscoelasticity.rate(chamber, x[0], x[1]))
         return jnp.stack(rates)
 
 
