@@ -15,10 +15,12 @@ import pytest
 from cardiosoft.design import cli
 from cardiosoft.design import loop as design_loop
 from cardiosoft.design.loop import CO_WEIGHT, PRESSURE_WEIGHT, loop_free, optimise_loop
-from cardiosoft.network.loop_batch import solve_loop
+from cardiosoft.network.loop_batch import scene_start, solve_loop
+from cardiosoft.network.loop_scene import loop_circuit
 from cardiosoft.program_store import use_program_store
+from cardiosoft.pump import load
 from cardiosoft.scene import load_scene
-from cardiosoft.units import mmHg
+from cardiosoft.units import ml, mmHg
 
 jax.config.update("jax_enable_x64", True)
 
@@ -55,8 +57,11 @@ def test_a_target_made_by_an_independent_solve_is_found_again(truth, monkeypatch
     co, lap = truth
     calls = []
 
+    starts = []
+
     def spy(scene, **kwargs):
         calls.append(np.asarray(kwargs["members"]["lv.shortening"]))
+        starts.append(np.asarray(kwargs["start"]["la"]["volume"]))
         return solve_loop(scene, **kwargs)
 
     monkeypatch.setattr(design_loop, "solve_loop", spy)
@@ -67,6 +72,8 @@ def test_a_target_made_by_an_independent_solve_is_found_again(truth, monkeypatch
     # the answer's records come from the call that evaluated it: no call solves one point
     # twice (the answer alone, padded to the batch)
     assert calls and all(len(np.unique(c)) == len(c) for c in calls)
+    # the first call starts from the scene's initial state, every later one from orbits found
+    assert np.isnan(starts[0]).all() and np.isfinite(np.concatenate(starts[1:])).all()
     # consistent targets: the least squares go to zero residual; 0.01 in C moves the left-
     # atrial pressure by ~0.2 mmHg, far above the orbits' own error (~1e-3 mmHg; the truth's
     # beats stopped at 1e-4 per beat)
@@ -75,6 +82,41 @@ def test_a_target_made_by_an_independent_solve_is_found_again(truth, monkeypatch
     assert abs(co_found - co) < 0.01 * CO_WEIGHT
     assert abs(lap_found - lap) < 0.01 * PRESSURE_WEIGHT
     assert r.run.members[0].ok
+
+
+def test_a_start_from_another_orbit_reaches_the_members_own_orbit_sooner():
+    """``solve_loop(start=...)``, as the design's calls use it: started from the orbit of
+    another design (C 0.50) in a loop holding 20 ml more blood, each member (C 0.55, 0.60)
+    keeps its own blood volume and reaches the orbit it reaches from the scene's initial
+    state, in fewer beats."""
+    scene = load_scene("soft-lv")
+    options = dict(
+        save="traces", steady="shooting", guess_beats=design_loop.GUESS_BEATS,
+        max_newton=design_loop.MAX_NEWTON,
+    )  # fmt: skip
+    cs = {"lv.shortening": np.array([0.55, 0.6])}
+    rest = solve_loop(scene, members=cs, start=scene_start(2), **options)
+    fuller = scene.with_numbers({"la.initial_volume": scene.la.initial_volume + 20 * ml})
+    other = {"lv.shortening": np.full(2, 0.5)}
+    near = solve_loop(fuller, members=other, start=scene_start(2), **options)
+    moved = solve_loop(scene, members=cs, start=near.y0, **options)
+    assert np.all(rest.steady) and np.all(moved.steady)
+    loop = loop_circuit(scene, load(scene.pump))  # the total is the same at any C
+    own, started = (np.asarray(jax.vmap(loop.total_volume)(out.y0)) for out in (rest, moved))
+    np.testing.assert_allclose(started, own, rtol=1e-12)  # the member's own, to round-off
+    # Newton stops within 1e-3 mmHg (ml) of an orbit, from either start: ten times that
+    lap = [np.asarray(out.metrics.left.atrial_mean) / mmHg for out in (rest, moved)]
+    np.testing.assert_allclose(lap[1], lap[0], atol=1e-2)
+    co = [np.asarray(out.metrics.left.net_output) * 6e4 for out in (rest, moved)]
+    np.testing.assert_allclose(co[1], co[0], atol=1e-2 * CO_WEIGHT)
+    assert np.all(moved.beats < rest.beats)
+
+
+def test_a_start_of_another_layout_is_refused_before_solving():
+    with pytest.raises(ValueError, match=r"start: a state needs the parts \['la'"):
+        solve_loop(load_scene("soft-lv"), start={"la": {"volume": 1e-4}})
+    with pytest.raises(ValueError, match=r"start: every value one per member \(1\)"):
+        solve_loop(load_scene("soft-lv"), start=scene_start(3))
 
 
 def test_an_unreachable_output_is_reported_with_the_most_seen():

@@ -50,12 +50,14 @@ from cardiosoft.solve import SolverConfig, preset, ran_out_of_steps
 __all__ = [
     "LOOP_SAMPLES",
     "SIDES",
+    "STARTED_GUESS_BEATS",
     "STIFF_SIDE_BY_SIDE",
     "LoopMetrics",
     "SideMetrics",
     "loop_config",
     "loop_members",
     "loop_metrics",
+    "scene_start",
     "solve_loop",
     "stiff_batch_size",
     "stiff_loop_config",
@@ -204,6 +206,7 @@ def _solve(
         # an ensemble's member carries its own draw of the pump's arrays (pump: the rest)
         values = {k: v for k, v in member.items() if k != "pump"}
         own = pump if "pump" not in member else eqx.combine(member["pump"], pump)
+        values.pop("start", None)
         loop = loop_circuit(structure.with_numbers(numbers | values), own, engine)
         return loop, None if save == "state" else _save_times(loop)
 
@@ -214,8 +217,9 @@ def _solve(
             signals = jax.vmap(loop.signals)(ts, ys)
             return loop_metrics(loop, ts, signals)
 
+        y0 = loop.init() if "start" not in member else started(loop, member["start"])
         return BeatProblem(
-            loop, loop.init(), loop.period, ts, loop.kink_times(), loop.total_volume,
+            loop, y0, loop.period, ts, loop.kink_times(), loop.total_volume,
             None if save == "traces" else observe,
         )
 
@@ -228,9 +232,13 @@ def _solve(
 
     def shoot(member):
         p = problem(member)
+        guess_beats = min(guess, max_beats)
+        if "start" in member:  # a member given a start is near its orbit already
+            given = jnp.any(~jnp.isnan(jnp.stack(jax.tree.leaves(member["start"]))))
+            guess_beats = jnp.where(given, min(STARTED_GUESS_BEATS, guess_beats), guess_beats)
         return shoot_periodic(
             p.field, p.y0, p.period, p.ts, jump_ts=p.jump_ts, total_volume=p.total_volume,
-            closed=True, guess_beats=min(guess, max_beats), max_beats=max_beats, tol=tol,
+            closed=True, guess_beats=guess_beats, max_beats=max_beats, tol=tol,
             config=config, observe=p.observe, max_newton=newton,
         )
 
@@ -240,6 +248,48 @@ def _solve(
         out = periodic_beats_batch(problem, members, max_beats=max_beats, tol=tol, config=config)
     metrics, traces = jax.vmap(report)(members, out)
     return metrics, traces, out
+
+
+def started(loop: ClosedLoop, start: dict) -> dict:
+    """``loop``'s initial state with the given ``start`` in place of its values (a NaN keeps
+    the loop's own), holding the loop's own total blood volume: its orbits form a family, one
+    per total (:func:`~cardiosoft.shooting.shoot_periodic`), so the left atrium, the volume the
+    shooting eliminates, takes the difference. The total depends on the initial volumes and
+    pressures and the compliances, not on a pump's design: another design's orbit in the same
+    loop leaves no difference, one from a loop of other numbers does."""
+    own = loop.init()
+    y = jax.tree.map(lambda mine, given: jnp.where(jnp.isnan(given), mine, given), own, start)
+    gap = loop.total_volume(own) - loop.total_volume(y)
+    first = CHAMBERS[0]
+    return y | {first: {**y[first], "volume": y[first]["volume"] + gap}}
+
+
+STARTED_GUESS_BEATS = 2
+"""Beats before Newton starts, for a member given a ``start`` (:func:`solve_loop`): from a
+nearby design's orbit the slow venous mode still changes a beat by more than the steady
+tolerance, so the guess would run all of its beats, where Newton needs none of them."""
+
+
+def scene_start(n: int) -> dict:
+    """A :func:`solve_loop` ``start`` of ``n`` members that keeps the scene's initial state
+    (every value NaN), in the layout of :meth:`ClosedLoop.init`."""
+    nan = np.full(n, np.nan)
+    return {c: {"volume": nan} for c in CHAMBERS} | {
+        v: {"pressure": nan, "flow": nan} for v in VESSELS
+    }
+
+
+def _start_states(start: dict, n: int) -> dict:
+    """``start`` (:func:`solve_loop`) as float arrays of ``n`` members, its parts checked."""
+    parts = (*CHAMBERS, *VESSELS)
+    if not isinstance(start, dict) or set(start) != set(parts):
+        found = sorted(start) if isinstance(start, dict) else type(start).__name__
+        raise ValueError(f"start: a state needs the parts {list(parts)}, got {found}")
+    ftype = jnp.result_type(float)
+    try:
+        return jax.tree.map(lambda a: jnp.broadcast_to(jnp.asarray(a, ftype), (n,)), start)
+    except ValueError as err:
+        raise ValueError(f"start: every value one per member ({n}): {err}") from None
 
 
 def _split(scene: LoopScene):
@@ -287,6 +337,7 @@ def solve_loop(
     guess_beats: int = GUESS_BEATS,
     max_newton: int = 8,
     engine: str = DEFAULT_ENGINE,
+    start: dict | None = None,
 ) -> BeatSolution:
     """Simulate a batch of members of a closed-loop scene to their periodic steady state.
 
@@ -321,6 +372,11 @@ def solve_loop(
       C 0.65 on the left).
     - ``engine``: ``"network"`` (default) or ``"direct"``
       (:attr:`~cardiosoft.network.closed_loop.ClosedLoop.engine`).
+    - ``start``: the members' states at the first beat's start, a dict like
+      :attr:`~cardiosoft.batch.BeatSolution`'s ``y0`` with the batch axis on every leaf (SI), in
+      place of the scene's initial state; a NaN keeps the scene's value, and the left atrium's
+      volume keeps each member's own total blood volume (:func:`started`). From a nearby
+      design's orbit the beats are steady after two (``cardiosoft.design.loop``).
 
     **Returns:** a :class:`~cardiosoft.batch.BeatSolution` whose ``metrics`` are
     :class:`LoopMetrics`; nothing is raised for a member that fails or is not steady.
@@ -336,6 +392,8 @@ def solve_loop(
             raise ValueError(f"{name}: scene {scene.name} has no soft pump to design")
         members |= {f"{c}.{name}": value for c in scene.pumps}
     members = loop_members(scene, members)
+    if start is not None:
+        start = _start_states(start, next(iter(members.values())).shape[0])
     pump = load(scene.pump) if pump is None and scene.pumps else pump
     chosen = config
     config = loop_config(scene) if config is None else config
@@ -347,6 +405,9 @@ def solve_loop(
     batch, shared = members, pump
     if size is not None:  # every draw at every member, on one flat axis
         batch, shared = flat_batch(members, pump, {}, size)
+        start = None if start is None else jax.tree.map(lambda a: jnp.tile(a, size), start)
+    if start is not None:
+        batch = batch | {"start": start}
 
     def solve(batch, config):
         return stored_call(
