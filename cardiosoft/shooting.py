@@ -52,7 +52,7 @@ def shoot_periodic(
     """The periodic steady state by Newton shooting on the one-beat map, then its last beat.
 
     1. ``guess_beats`` beats from ``y0`` (beat after beat; fewer if already steady): the guess.
-    2. Newton's method (``optimistix.root_find``) on ``u -> Phi(u) - u``, ``Phi`` the state one
+    2. Newton's method (:func:`_newton`) on ``u -> Phi(u) - u``, ``Phi`` the state one
        beat later, in the periodic states of :data:`PERIODIC_SCALES` divided by their scales
        (ml, ml/s, mmHg); its Jacobian comes from forward-mode derivatives of the beat (a 2-5
        dimensional state; 11 in a closed loop). ``closed``: the circuit conserves its total
@@ -64,8 +64,8 @@ def shoot_periodic(
        that the total volume is that of ``y0``. Left at its guessed value, Newton's move of the
        pump volume and the Windkessel pressure showed as a volume drift of up to 0.78
        (relative; lv-systemic and rv-pulmonary at 240-300 bpm), now ~1e-15.
-    3. From the orbit (where Newton stopped short of its tolerance, from its last iterate if
-       one beat changes that less than the guess's last beat did, else from the guess), beat
+    3. From the orbit (where Newton stopped short of its tolerance, from its iterate that one
+       beat changes least, the guess's end among them), beat
        after beat as in :func:`periodic_beats` until the cycle-to-cycle change is below
        ``tol``, at most ``max_beats``: at a converged orbit that is two beats (the steady
        test); otherwise beat after beat is the fallback, and ``residual`` says how it ended.
@@ -85,8 +85,6 @@ def shoot_periodic(
     costs about one beat per state component more). The arguments are those of
     :func:`periodic_beats`.
     """
-    import optimistix as optx  # where a solve is traced (cardiosoft.solve's docstring)
-
     config = preset("default") if config is None else config
     v_ref = total_volume(y0)
     field_f, y0_f, period_f, jump_ts_f, v_ref_f = _frozen((field, y0, period, jump_ts, v_ref))
@@ -94,30 +92,21 @@ def shoot_periodic(
     guess = periodic_beats(field_f, y0_f, period_f, None, max_beats=guess_beats, **beats)
     unknowns = _Unknowns(guess.y_end, closed, total_volume)
 
-    def beat_map(u, args):
+    def beat_map(u):
         y = unknowns.state(u, v_ref_f)
         return unknowns.of(_beat_end(field_f, period_f, y, jump_ts_f, config)) - u
 
     # Newton's own tolerance, in the scaled units: well inside the steady tolerance
-    newton = optx.Newton(rtol=1e-8, atol=0.1 * tol + 1e-9)
-    u0 = unknowns.of(guess.y_end)
-    root = optx.root_find(beat_map, newton, u0, max_steps=max_newton, throw=False)
-    converged = optx.RESULTS.successful == root.result
-    finite = jnp.all(jnp.isfinite(root.value))
-    # The beat map is smooth only to the integrator's tolerance: Newton can stall just above
-    # its own tolerance, much nearer the orbit than the guess (on tah's design grid at 1.1e-3
-    # against its 1e-3, for 16 iterations). The beats then start from Newton's last iterate
-    # where one beat changes it less than the guess's last beat changed: 2 beats to the steady
-    # test, where from the guess they took 80-100.
-    nearer = jnp.max(jnp.abs(beat_map(jnp.where(finite, root.value, u0), None))) < guess.residual
-    start = jnp.where(finite & (converged | nearer), root.value, u0)
+    start, newton_steps = _newton(
+        beat_map, unknowns.of(guess.y_end), atol=0.1 * tol + 1e-9, rtol=1e-8,
+        max_steps=max_newton,
+    )  # fmt: skip
     final = periodic_beats(
         field_f, unknowns.state(start, v_ref_f), period_f, None, max_beats=max_beats, **beats
     )
     drift = jnp.maximum(guess.volume_drift, final.volume_drift)
     result = jnp.where(guess.result == SUCCESSFUL, final.result, guess.result)
     beats = guess.beats + final.beats
-    newton_steps = root.stats["num_steps"]
     if ts is None:  # the orbit's start only, its derivative the orbit's
         orbit = (field, final.y0, period, jump_ts, total_volume, v_ref, closed, config)
         y_start, _, _ = _orbit(*orbit)
@@ -297,6 +286,54 @@ class _Unknowns:
             lambda a: self.total_volume(with_leaf(a)), (acc,), (jnp.ones_like(acc),)
         )
         return with_leaf(acc + (v_ref - total) / slope)
+
+
+def _newton(residual, u0, *, atol, rtol, max_steps: int):
+    """Newton's method on ``residual(u) = 0`` from ``u0``: (where the beats go on from,
+    iterations). Each iteration takes the residual and its Jacobian from one
+    forward-mode pass (``jax.jacfwd``, the residual as its aux), so each beat is integrated
+    once, with its tangents. (``optimistix.root_find`` linearises the beat map instead:
+    JAX integrates the beat once for the value and again inside the linear map, and its
+    answer's residual took one more beat; the design's program was 25,569 jaxpr equations.)
+
+    Converged as optimistix's Cauchy test: the residual within ``atol`` and the step within
+    ``atol + rtol |u|`` (the largest component; the step is taken). Where it does not
+    converge in ``max_steps`` (the beat map is smooth only to the integrator's tolerance:
+    Newton can stall just above its tolerance, on tah's design grid at 1.1e-3 against 1e-3),
+    the iterate of least residual, the last one among them, much nearer the orbit than the
+    guess: the beats start there (2 to the steady test, where from the guess they took
+    80-100)."""
+
+    def value_and_jacobian(u):
+        jac, value = jax.jacfwd(lambda v: (lambda r: (r, r))(residual(v)), has_aux=True)(u)
+        return value, jac
+
+    def running(carry):
+        steps, _, _, _, stop, _ = carry
+        return (steps < max_steps) & ~stop
+
+    def iteration(carry):
+        steps, u, best, least, _, _ = carry
+        value, jac = value_and_jacobian(u)
+        size = jnp.max(jnp.abs(value))
+        better = size < least  # False for a NaN
+        step = jnp.linalg.solve(jac, value)
+        new = u - step
+        small = jnp.max(jnp.abs(step) / (atol + rtol * jnp.abs(new))) < 1
+        converged = (size < atol) & small
+        finite = jnp.all(jnp.isfinite(new))
+        return (
+            steps + 1, jnp.where(finite, new, u), jnp.where(better, u, best),
+            jnp.where(better, size, least), converged | ~finite, converged,
+        )  # fmt: skip
+
+    inf = jnp.array(jnp.inf, u0.dtype)
+    carry = (jnp.array(0), u0, u0, inf, jnp.array(False), jnp.array(False))
+    steps, u, best, least, _, converged = jax.lax.while_loop(running, iteration, carry)
+    # stopped by max_steps: the last step is not yet measured, and may be the one that
+    # landed (one step from far off on a linear map); one beat, without tangents, says
+    last = jnp.max(jnp.abs(residual(u))) < least
+    return jnp.where(converged | last, u, best), steps
 
 
 def _beat_end(field, period, y, jump_ts, config):
