@@ -27,6 +27,11 @@ diffrax, tracing and compiling its programs. This script prints
    and XLA compilation per jitted function, largest first. The quasi-static strokes compile on
    a second thread while the dynamic solve traces and compiles, so the entries overlap and do
    not add up to the wall time.
+
+``--against CHECKOUT`` times a change instead (:func:`against`): another checkout of the
+repository (``git worktree add /tmp/before <commit>``, with the programs shipped at that
+commit) and this one, alternating, each command's round a cold run then two warm ones, each
+checkout with its own compile-cache folder; it prints the ranges and the ratio of the medians.
 """
 
 from __future__ import annotations
@@ -158,6 +163,38 @@ def _cold_warm_traced(cmd, repeat: int) -> dict[str, list[float]]:
     return walls
 
 
+def _cold_warm(cmd, checkout: Path) -> tuple[float, list[float]]:
+    """A cold run of ``cmd`` in ``checkout`` (its package first on the path), then two warm."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "CARDIOSOFT_COMPILE_CACHE": cache, "PYTHONPATH": str(checkout)}
+        walls = []
+        for _ in range(3):
+            start = time.perf_counter()
+            subprocess.run(cmd, cwd=checkout, env=env, check=True, capture_output=True)
+            walls.append(time.perf_counter() - start)
+    return walls[0], walls[1:]
+
+
+def against(before: Path, names, rounds: int) -> None:
+    """Each command of ``names`` from fresh processes in the checkout ``before`` and in this
+    one, alternating, ``rounds`` times: cold and warm ranges, and after / before medians."""
+    print(f"   before: {before}; after: {REPO}; {rounds} rounds, each a cold run and two warm")
+    for name in names:
+        walls = {side: {"cold": [], "warm": []} for side in ("before", "after")}
+        for _ in range(rounds):
+            for side, checkout in (("before", before), ("after", REPO)):
+                cold, warm = _cold_warm(fresh_process(name), checkout)
+                walls[side]["cold"].append(cold)
+                walls[side]["warm"].extend(warm)
+        print(f"   {name}: python -m {' '.join(COMMANDS[name][0])}")
+        for kind in ("cold", "warm"):
+            b, a = walls["before"][kind], walls["after"][kind]
+            print(
+                f"     {kind}: {min(b):.1f}-{max(b):.1f} -> {min(a):.1f}-{max(a):.1f} s, "
+                f"after / before {statistics.median(a) / statistics.median(b):.2f} (medians)"
+            )
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="fresh processes to time (3)")
@@ -165,9 +202,18 @@ def main(argv=None) -> int:
         "--commands", nargs="+", choices=COMMANDS, default=["main"],
         help="what to time (default: main; all of them take about 25 minutes)",
     )  # fmt: skip
+    parser.add_argument(
+        "--against", type=Path, metavar="CHECKOUT",
+        help="time the commands here against another checkout instead (rounds: --repeat)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
+    if args.against is not None and not (args.against / "cardiosoft" / "__init__.py").is_file():
+        parser.error(f"--against {args.against}: not a checkout of cardiosoft")
     print(f"cardiosoft start-up benchmark: {', '.join(args.commands)}")
     print(f"machine: os.cpu_count() = {os.cpu_count()}, load average {os.getloadavg()[0]:.2f}")
+    if args.against is not None:
+        against(args.against.resolve(), args.commands, args.repeat)
+        return 0
     print(
         f"\n1. fresh processes, {args.repeat} each: cold compile cache, warm (the programs "
         "loaded from the store), warm traced (CARDIOSOFT_PROGRAM_STORE=0; issue #41's before)"
