@@ -91,9 +91,9 @@ PHASES = {
 }
 
 
-def _wall(cmd, env=None) -> float:
+def _wall(cmd, env=None, cwd=REPO) -> float:
     start = time.perf_counter()
-    subprocess.run(cmd, cwd=REPO, env=env, check=True, capture_output=True)
+    subprocess.run(cmd, cwd=cwd, env=env, check=True, capture_output=True)
     return time.perf_counter() - start
 
 
@@ -167,11 +167,7 @@ def _cold_warm(cmd, checkout: Path) -> tuple[float, list[float]]:
     """A cold run of ``cmd`` in ``checkout`` (its package first on the path), then two warm."""
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "CARDIOSOFT_COMPILE_CACHE": cache, "PYTHONPATH": str(checkout)}
-        walls = []
-        for _ in range(3):
-            start = time.perf_counter()
-            subprocess.run(cmd, cwd=checkout, env=env, check=True, capture_output=True)
-            walls.append(time.perf_counter() - start)
+        walls = [_wall(cmd, env, cwd=checkout) for _ in range(3)]
     return walls[0], walls[1:]
 
 

@@ -115,6 +115,9 @@ def test_a_start_from_another_orbit_reaches_the_members_own_orbit_sooner():
 def test_a_start_of_another_layout_is_refused_before_solving():
     with pytest.raises(ValueError, match=r"start: a state needs the parts \['la'"):
         solve_loop(load_scene("soft-lv"), start={"la": {"volume": 1e-4}})
+    misnamed = scene_start(1) | {"la": {"pressure": np.full(1, 1e-4)}}
+    with pytest.raises(ValueError, match=r"start: a state needs the parts \['la'"):
+        solve_loop(load_scene("soft-lv"), start=misnamed)
     with pytest.raises(ValueError, match=r"start: every value one per member \(1\)"):
         solve_loop(load_scene("soft-lv"), start=scene_start(3))
 

@@ -280,11 +280,12 @@ def scene_start(n: int) -> dict:
 
 
 def _start_states(start: dict, n: int) -> dict:
-    """``start`` (:func:`solve_loop`) as float arrays of ``n`` members, its parts checked."""
-    parts = (*CHAMBERS, *VESSELS)
-    if not isinstance(start, dict) or set(start) != set(parts):
-        found = sorted(start) if isinstance(start, dict) else type(start).__name__
-        raise ValueError(f"start: a state needs the parts {list(parts)}, got {found}")
+    """``start`` (:func:`solve_loop`) as float arrays of ``n`` members, laid out as
+    :func:`scene_start`'s."""
+    layout = scene_start(n)
+    if jax.tree.structure(start) != jax.tree.structure(layout):
+        parts = {part: list(states) for part, states in layout.items()}
+        raise ValueError(f"start: a state needs the parts {list(parts)} with {parts}")
     ftype = jnp.result_type(float)
     try:
         return jax.tree.map(lambda a: jnp.broadcast_to(jnp.asarray(a, ftype), (n,)), start)
